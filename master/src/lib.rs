@@ -1,0 +1,1 @@
+//! texsyn master library.

@@ -1,0 +1,11 @@
+//! The texsyn cluster protocol: tonic/prost code generated from `proto/texsyn.proto`.
+
+/// Protocol version spoken by this build; master and worker refuse to talk across versions.
+pub const PROTOCOL_VERSION: u32 = 1;
+
+#[allow(clippy::all, missing_docs)]
+pub mod v1 {
+    tonic::include_proto!("texsyn.v1");
+}
+
+pub use v1::*;

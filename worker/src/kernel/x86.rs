@@ -1,0 +1,325 @@
+//! AVX2 and AVX-512BW kernels (x86-64).
+//!
+//! The core is `vpsadbw` over the vector masked with the query's mask
+//! (Stahlhut §7 uses the same instruction in its MMX form). Per (vector, query)
+//! pair the chunk sums stay in a 64-bit-lane accumulator with the hi part in the
+//! low 32 bits and the lo part in the high 32 bits; a transposing reduction
+//! turns 8 (or 4) accumulators into 8 (or 4) packed sums at once, and two
+//! `vpmuludq` apply the integer weights. The result equals the scalar reference
+//! exactly (integer arithmetic, no overflow: hi and lo sums stay below 2³²).
+
+#![allow(clippy::missing_safety_doc)]
+
+use std::arch::x86_64::*;
+
+use super::{distance, padded_queries, Scan, Sink};
+use crate::layout::Metric;
+
+pub(crate) fn has_avx2() -> bool {
+    is_x86_feature_detected!("avx2")
+}
+
+pub(crate) fn has_avx512() -> bool {
+    has_avx2()
+        && is_x86_feature_detected!("avx512f")
+        && is_x86_feature_detected!("avx512bw")
+        && is_x86_feature_detected!("avx512vl")
+}
+
+/// How a padded vector is cut into SIMD chunks: each part in full 64-byte
+/// chunks plus an optional 32-byte tail (parts are padded to 32 bytes).
+#[derive(Clone, Copy)]
+struct Plan {
+    hi_pad: usize,
+    hi64: usize,
+    hi32: bool,
+    lo64: usize,
+    lo32: bool,
+}
+
+impl Plan {
+    fn new(scan: &Scan) -> Self {
+        let l = scan.layout;
+        Self {
+            hi_pad: l.hi_pad,
+            hi64: l.hi_pad / 64,
+            hi32: l.hi_pad % 64 != 0,
+            lo64: l.lo_pad / 64,
+            lo32: l.lo_pad % 64 != 0,
+        }
+    }
+}
+
+// ---------------------------------------------------------------- AVX-512
+
+#[inline(always)]
+unsafe fn part512<const L2: bool>(v: __m512i, m: __m512i, q: __m512i) -> __m512i {
+    let x = _mm512_and_si512(v, m);
+    if L2 {
+        let d = _mm512_or_si512(_mm512_subs_epu8(x, q), _mm512_subs_epu8(q, x));
+        let z = _mm512_setzero_si512();
+        let a = _mm512_unpacklo_epi8(d, z);
+        let b = _mm512_unpackhi_epi8(d, z);
+        let s = _mm512_add_epi32(_mm512_madd_epi16(a, a), _mm512_madd_epi16(b, b));
+        _mm512_add_epi64(
+            _mm512_and_si512(s, _mm512_set1_epi64(0xFFFF_FFFF)),
+            _mm512_srli_epi64::<32>(s),
+        )
+    } else {
+        _mm512_sad_epu8(x, q)
+    }
+}
+
+#[inline(always)]
+unsafe fn part256<const L2: bool>(v: __m256i, m: __m256i, q: __m256i) -> __m256i {
+    let x = _mm256_and_si256(v, m);
+    if L2 {
+        let d = _mm256_or_si256(_mm256_subs_epu8(x, q), _mm256_subs_epu8(q, x));
+        let z = _mm256_setzero_si256();
+        let a = _mm256_unpacklo_epi8(d, z);
+        let b = _mm256_unpackhi_epi8(d, z);
+        let s = _mm256_add_epi32(_mm256_madd_epi16(a, a), _mm256_madd_epi16(b, b));
+        _mm256_add_epi64(
+            _mm256_and_si256(s, _mm256_set1_epi64x(0xFFFF_FFFF)),
+            _mm256_srli_epi64::<32>(s),
+        )
+    } else {
+        _mm256_sad_epu8(x, q)
+    }
+}
+
+#[inline(always)]
+unsafe fn ld512(p: *const u8) -> __m512i {
+    _mm512_loadu_si512(p.cast())
+}
+
+#[inline(always)]
+unsafe fn ld256(p: *const u8) -> __m256i {
+    _mm256_loadu_si256(p.cast())
+}
+
+/// Sums of 8 (vector, query) pairs: pair j compares `v[j]` with query `q[j]`/`m[j]`.
+/// Returns one 64-bit lane per pair, hi sum in the low and lo sum in the high half.
+#[inline(always)]
+unsafe fn pairs8<const L2: bool>(
+    plan: &Plan,
+    v: &[*const u8; 8],
+    q: &[*const u8; 8],
+    m: &[*const u8; 8],
+) -> __m512i {
+    let mut acc = [_mm512_setzero_si512(); 8];
+    for c in 0..plan.hi64 {
+        let o = c * 64;
+        for j in 0..8 {
+            let s = part512::<L2>(ld512(v[j].add(o)), ld512(m[j].add(o)), ld512(q[j].add(o)));
+            acc[j] = _mm512_add_epi64(acc[j], s);
+        }
+    }
+    if plan.hi32 {
+        let o = plan.hi64 * 64;
+        for j in 0..8 {
+            let s = part256::<L2>(ld256(v[j].add(o)), ld256(m[j].add(o)), ld256(q[j].add(o)));
+            acc[j] = _mm512_add_epi64(acc[j], _mm512_zextsi256_si512(s));
+        }
+    }
+    for c in 0..plan.lo64 {
+        let o = plan.hi_pad + c * 64;
+        for j in 0..8 {
+            let s = part512::<L2>(ld512(v[j].add(o)), ld512(m[j].add(o)), ld512(q[j].add(o)));
+            acc[j] = _mm512_add_epi64(acc[j], _mm512_slli_epi64::<32>(s));
+        }
+    }
+    if plan.lo32 {
+        let o = plan.hi_pad + plan.lo64 * 64;
+        for j in 0..8 {
+            let s = part256::<L2>(ld256(v[j].add(o)), ld256(m[j].add(o)), ld256(q[j].add(o)));
+            acc[j] = _mm512_add_epi64(acc[j], _mm512_zextsi256_si512(_mm256_slli_epi64::<32>(s)));
+        }
+    }
+    reduce8(&acc)
+}
+
+/// Lane j of the result = sum of the 8 lanes of `a[j]`.
+#[inline(always)]
+unsafe fn reduce8(a: &[__m512i; 8]) -> __m512i {
+    let pair = |x: __m512i, y: __m512i| {
+        _mm512_add_epi64(_mm512_unpacklo_epi64(x, y), _mm512_unpackhi_epi64(x, y))
+    };
+    let quad = |x: __m512i, y: __m512i| {
+        _mm512_add_epi64(
+            _mm512_shuffle_i64x2::<0b10_00_10_00>(x, y),
+            _mm512_shuffle_i64x2::<0b11_01_11_01>(x, y),
+        )
+    };
+    let b0 = pair(a[0], a[1]);
+    let b1 = pair(a[2], a[3]);
+    let b2 = pair(a[4], a[5]);
+    let b3 = pair(a[6], a[7]);
+    quad(quad(b0, b1), quad(b2, b3))
+}
+
+#[inline(always)]
+unsafe fn weigh512(r: __m512i, wh: __m512i, wl: __m512i) -> __m512i {
+    _mm512_add_epi64(
+        _mm512_mul_epu32(r, wh),
+        _mm512_mul_epu32(_mm512_srli_epi64::<32>(r), wl),
+    )
+}
+
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
+pub(crate) unsafe fn scan_avx512<S: Sink>(scan: &Scan, sink: &mut S) {
+    match scan.params.metric {
+        Metric::L1 => scan512::<false, S>(scan, sink),
+        Metric::L2 => scan512::<true, S>(scan, sink),
+    }
+}
+
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
+unsafe fn scan512<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
+    let plan = Plan::new(scan);
+    let s = scan.layout.stride();
+    let nq = scan.queries.len();
+    let wh = _mm512_set1_epi64(i64::from(scan.params.weights.hi));
+    let wl = _mm512_set1_epi64(i64::from(scan.params.weights.lo));
+    let vp = scan.vectors.as_ptr();
+    if nq >= 8 {
+        // Rows: one vector against groups of 8 queries.
+        let (qv, qm, nqp) = padded_queries(scan.queries, 8);
+        let mut row = vec![0u64; nqp];
+        for i in 0..scan.count {
+            let v = [vp.add(i * s); 8];
+            for g in 0..nqp / 8 {
+                let q: [*const u8; 8] = std::array::from_fn(|j| qv.as_ptr().add((g * 8 + j) * s));
+                let m: [*const u8; 8] = std::array::from_fn(|j| qm.as_ptr().add((g * 8 + j) * s));
+                let d = weigh512(pairs8::<L2>(&plan, &v, &q, &m), wh, wl);
+                _mm512_storeu_si512(row.as_mut_ptr().add(g * 8).cast(), d);
+            }
+            sink.row(scan.base + i as u64, &row[..nq]);
+        }
+    } else {
+        // Runs: one query against groups of 8 vectors.
+        let mut buf = [0u64; 8];
+        let groups = scan.count / 8;
+        for g in 0..groups {
+            let v: [*const u8; 8] = std::array::from_fn(|j| vp.add((g * 8 + j) * s));
+            for qi in 0..nq {
+                let q = [scan.queries.values(qi).as_ptr(); 8];
+                let m = [scan.queries.mask(qi).as_ptr(); 8];
+                let d = weigh512(pairs8::<L2>(&plan, &v, &q, &m), wh, wl);
+                _mm512_storeu_si512(buf.as_mut_ptr().cast(), d);
+                sink.run(qi, scan.base + (g * 8) as u64, &buf);
+            }
+        }
+        tail(scan, groups * 8, sink);
+    }
+}
+
+/// Vectors `from..count` one at a time with the scalar reference.
+fn tail<S: Sink>(scan: &Scan, from: usize, sink: &mut S) {
+    let s = scan.layout.stride();
+    for i in from..scan.count {
+        let v = &scan.vectors[i * s..(i + 1) * s];
+        for qi in 0..scan.queries.len() {
+            let d = distance(
+                &scan.layout,
+                &scan.params,
+                v,
+                scan.queries.values(qi),
+                scan.queries.mask(qi),
+            );
+            sink.run(qi, scan.base + i as u64, &[d]);
+        }
+    }
+}
+
+// ---------------------------------------------------------------- AVX2
+
+/// As [`pairs8`] for 4 pairs with 32-byte chunks (parts are multiples of 32).
+#[inline(always)]
+unsafe fn pairs4<const L2: bool>(
+    plan: &Plan,
+    v: &[*const u8; 4],
+    q: &[*const u8; 4],
+    m: &[*const u8; 4],
+) -> __m256i {
+    let mut acc = [_mm256_setzero_si256(); 4];
+    let hi_chunks = plan.hi_pad / 32;
+    let lo_chunks = plan.lo64 * 2 + usize::from(plan.lo32);
+    for c in 0..hi_chunks {
+        let o = c * 32;
+        for j in 0..4 {
+            let s = part256::<L2>(ld256(v[j].add(o)), ld256(m[j].add(o)), ld256(q[j].add(o)));
+            acc[j] = _mm256_add_epi64(acc[j], s);
+        }
+    }
+    for c in 0..lo_chunks {
+        let o = plan.hi_pad + c * 32;
+        for j in 0..4 {
+            let s = part256::<L2>(ld256(v[j].add(o)), ld256(m[j].add(o)), ld256(q[j].add(o)));
+            acc[j] = _mm256_add_epi64(acc[j], _mm256_slli_epi64::<32>(s));
+        }
+    }
+    let pair = |x: __m256i, y: __m256i| {
+        _mm256_add_epi64(_mm256_unpacklo_epi64(x, y), _mm256_unpackhi_epi64(x, y))
+    };
+    let b0 = pair(acc[0], acc[1]);
+    let b1 = pair(acc[2], acc[3]);
+    _mm256_add_epi64(
+        _mm256_permute2x128_si256::<0x20>(b0, b1),
+        _mm256_permute2x128_si256::<0x31>(b0, b1),
+    )
+}
+
+#[inline(always)]
+unsafe fn weigh256(r: __m256i, wh: __m256i, wl: __m256i) -> __m256i {
+    _mm256_add_epi64(
+        _mm256_mul_epu32(r, wh),
+        _mm256_mul_epu32(_mm256_srli_epi64::<32>(r), wl),
+    )
+}
+
+#[target_feature(enable = "avx2")]
+pub(crate) unsafe fn scan_avx2<S: Sink>(scan: &Scan, sink: &mut S) {
+    match scan.params.metric {
+        Metric::L1 => scan256::<false, S>(scan, sink),
+        Metric::L2 => scan256::<true, S>(scan, sink),
+    }
+}
+
+#[target_feature(enable = "avx2")]
+unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
+    let plan = Plan::new(scan);
+    let s = scan.layout.stride();
+    let nq = scan.queries.len();
+    let wh = _mm256_set1_epi64x(i64::from(scan.params.weights.hi));
+    let wl = _mm256_set1_epi64x(i64::from(scan.params.weights.lo));
+    let vp = scan.vectors.as_ptr();
+    if nq >= 4 {
+        let (qv, qm, nqp) = padded_queries(scan.queries, 4);
+        let mut row = vec![0u64; nqp];
+        for i in 0..scan.count {
+            let v = [vp.add(i * s); 4];
+            for g in 0..nqp / 4 {
+                let q: [*const u8; 4] = std::array::from_fn(|j| qv.as_ptr().add((g * 4 + j) * s));
+                let m: [*const u8; 4] = std::array::from_fn(|j| qm.as_ptr().add((g * 4 + j) * s));
+                let d = weigh256(pairs4::<L2>(&plan, &v, &q, &m), wh, wl);
+                _mm256_storeu_si256(row.as_mut_ptr().add(g * 4).cast(), d);
+            }
+            sink.row(scan.base + i as u64, &row[..nq]);
+        }
+    } else {
+        let mut buf = [0u64; 4];
+        let groups = scan.count / 4;
+        for g in 0..groups {
+            let v: [*const u8; 4] = std::array::from_fn(|j| vp.add((g * 4 + j) * s));
+            for qi in 0..nq {
+                let q = [scan.queries.values(qi).as_ptr(); 4];
+                let m = [scan.queries.mask(qi).as_ptr(); 4];
+                let d = weigh256(pairs4::<L2>(&plan, &v, &q, &m), wh, wl);
+                _mm256_storeu_si256(buf.as_mut_ptr().cast(), d);
+                sink.run(qi, scan.base + (g * 4) as u64, &buf);
+            }
+        }
+        tail(scan, groups * 4, sink);
+    }
+}

@@ -1,0 +1,340 @@
+//! Exact exhaustive nearest-neighbour search (Stahlhut §7, DESIGN §3.5).
+//!
+//! The range is cut into sub-ranges that rayon scores in parallel with one
+//! kernel pass each; the per-sub-range answers are merged by (distance, global
+//! index). Distances are integers and ties go to the lowest index, so the
+//! answer does not depend on the number of threads, the split, the kernel or
+//! (in the cluster) the number of workers.
+
+use std::ops::Range;
+
+use rayon::prelude::*;
+
+use crate::error::{EngineError, Result};
+use crate::kernel::{Kernel, Params, Scan, Sink};
+use crate::layout::{QueryBatch, VectorSpace};
+
+/// One answer: a global reference index and its distance to the query.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub struct Hit {
+    pub index: u64,
+    pub dist: u64,
+}
+
+impl Hit {
+    /// The "nothing found yet" hit; loses against every real one.
+    pub const NONE: Hit = Hit {
+        index: u64::MAX,
+        dist: u64::MAX,
+    };
+
+    /// Ordering key: smaller distance first, then lower index.
+    pub fn key(&self) -> (u64, u64) {
+        (self.dist, self.index)
+    }
+
+    pub fn is_none(&self) -> bool {
+        *self == Hit::NONE
+    }
+}
+
+/// Merges best-1 answers of another part into `acc`, query by query
+/// (min distance, ties to the lowest index). Used for sub-ranges and workers alike.
+pub fn merge_best(acc: &mut [Hit], other: &[Hit]) {
+    for (a, b) in acc.iter_mut().zip(other) {
+        if b.key() < a.key() {
+            *a = *b;
+        }
+    }
+}
+
+/// Merges two sorted top-k lists into the best `k`, ordered by (distance, index).
+pub fn merge_topk(a: &[Hit], b: &[Hit], k: usize) -> Vec<Hit> {
+    let mut out = Vec::with_capacity(k.min(a.len() + b.len()));
+    let (mut i, mut j) = (0, 0);
+    while out.len() < k && (i < a.len() || j < b.len()) {
+        let take_a = j >= b.len() || (i < a.len() && a[i].key() <= b[j].key());
+        if take_a {
+            out.push(a[i]);
+            i += 1;
+        } else {
+            out.push(b[j]);
+            j += 1;
+        }
+    }
+    out
+}
+
+struct BestSink {
+    dist: Vec<u64>,
+    index: Vec<u64>,
+}
+
+impl Sink for BestSink {
+    #[inline(always)]
+    fn row(&mut self, index: u64, d: &[u64]) {
+        for ((bd, bi), &x) in self.dist.iter_mut().zip(self.index.iter_mut()).zip(d) {
+            let better = x < *bd;
+            *bd = if better { x } else { *bd };
+            *bi = if better { index } else { *bi };
+        }
+    }
+
+    #[inline(always)]
+    fn run(&mut self, q: usize, first: u64, d: &[u64]) {
+        let (mut bd, mut bi) = (self.dist[q], self.index[q]);
+        for (k, &x) in d.iter().enumerate() {
+            if x < bd {
+                bd = x;
+                bi = first + k as u64;
+            }
+        }
+        self.dist[q] = bd;
+        self.index[q] = bi;
+    }
+}
+
+/// Per query a sorted list of the best k; a candidate must beat the current k-th
+/// (vectors arrive in ascending index order, so an equal distance never displaces).
+struct TopKSink {
+    k: usize,
+    lists: Vec<Vec<Hit>>,
+    worst: Vec<u64>,
+}
+
+impl TopKSink {
+    #[inline(always)]
+    fn offer(&mut self, q: usize, index: u64, dist: u64) {
+        if dist >= self.worst[q] {
+            return;
+        }
+        let list = &mut self.lists[q];
+        let pos = list.partition_point(|h| h.dist <= dist);
+        list.insert(pos, Hit { index, dist });
+        if list.len() > self.k {
+            list.pop();
+        }
+        if list.len() == self.k {
+            self.worst[q] = list[self.k - 1].dist;
+        }
+    }
+}
+
+impl Sink for TopKSink {
+    #[inline(always)]
+    fn row(&mut self, index: u64, d: &[u64]) {
+        for (q, &x) in d.iter().enumerate() {
+            if x < self.worst[q] {
+                self.offer(q, index, x);
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn run(&mut self, q: usize, first: u64, d: &[u64]) {
+        for (k, &x) in d.iter().enumerate() {
+            if x < self.worst[q] {
+                self.offer(q, first + k as u64, x);
+            }
+        }
+    }
+}
+
+/// The search engine: a kernel and the way a range is split for rayon.
+/// The master's local search and the gRPC worker both call this.
+#[derive(Debug, Clone, Copy)]
+pub struct Engine {
+    kernel: Kernel,
+    /// Smallest sub-range handed to one rayon task, in vectors.
+    min_chunk: usize,
+}
+
+impl Default for Engine {
+    fn default() -> Self {
+        Self::new(Kernel::detect())
+    }
+}
+
+impl Engine {
+    pub fn new(kernel: Kernel) -> Self {
+        Self {
+            kernel,
+            min_chunk: 2048,
+        }
+    }
+
+    /// An engine with a named kernel, checked against this CPU.
+    pub fn with_kernel_name(name: &str) -> Result<Self> {
+        Ok(Self::new(Kernel::from_name(name)?))
+    }
+
+    /// Sets the smallest sub-range per rayon task (tests use tiny values to force splits).
+    pub fn with_min_chunk(mut self, min_chunk: usize) -> Self {
+        self.min_chunk = min_chunk.max(1);
+        self
+    }
+
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
+    }
+
+    fn check(&self, space: &VectorSpace, range: &Range<u64>, queries: &QueryBatch) -> Result<()> {
+        self.kernel.check()?;
+        if queries.layout() != space.layout() {
+            let (a, b) = (queries.layout(), space.layout());
+            return Err(EngineError::Geometry(format!(
+                "queries have {}+{} components but the space has {}+{}; build both from the same geometry",
+                a.hi_len, a.lo_len, b.hi_len, b.lo_len
+            )));
+        }
+        if queries.is_empty() {
+            return Err(EngineError::Empty("query batch"));
+        }
+        if range.start >= range.end {
+            return Err(EngineError::Empty("index range"));
+        }
+        if range.start < space.start() || range.end > space.end() {
+            return Err(EngineError::Range {
+                start: range.start,
+                end: range.end,
+                space_start: space.start(),
+                space_end: space.end(),
+            });
+        }
+        Ok(())
+    }
+
+    fn chunks(&self, range: &Range<u64>) -> Vec<Range<u64>> {
+        let n = (range.end - range.start) as usize;
+        let threads = rayon::current_num_threads().max(1);
+        // A few tasks per thread for balance, never smaller than `min_chunk`.
+        let per = n.div_ceil(threads * 4).max(self.min_chunk);
+        (0..n.div_ceil(per))
+            .map(|i| {
+                let a = range.start + (i * per) as u64;
+                a..(a + per as u64).min(range.end)
+            })
+            .collect()
+    }
+
+    fn scan<'a>(
+        &self,
+        space: &'a VectorSpace,
+        r: Range<u64>,
+        queries: &'a QueryBatch,
+        params: &Params,
+    ) -> Scan<'a> {
+        Scan {
+            layout: space.layout(),
+            params: *params,
+            vectors: space.slice(r.clone()),
+            count: (r.end - r.start) as usize,
+            base: r.start,
+            queries,
+        }
+    }
+
+    /// Best match per query in the global index `range` of `space`.
+    pub fn search_best(
+        &self,
+        space: &VectorSpace,
+        range: Range<u64>,
+        queries: &QueryBatch,
+        params: &Params,
+    ) -> Result<Vec<Hit>> {
+        self.check(space, &range, queries)?;
+        let nq = queries.len();
+        let parts: Vec<Vec<Hit>> = self
+            .chunks(&range)
+            .into_par_iter()
+            .map(|r| {
+                let mut sink = BestSink {
+                    dist: vec![u64::MAX; nq],
+                    index: vec![u64::MAX; nq],
+                };
+                self.kernel
+                    .scan(&self.scan(space, r, queries, params), &mut sink);
+                sink.dist
+                    .iter()
+                    .zip(&sink.index)
+                    .map(|(&dist, &index)| Hit { index, dist })
+                    .collect()
+            })
+            .collect();
+        let mut best = vec![Hit::NONE; nq];
+        for p in &parts {
+            merge_best(&mut best, p);
+        }
+        Ok(best)
+    }
+
+    /// The `k` best matches per query, sorted by (distance, index); fewer when
+    /// the range holds fewer than `k` vectors.
+    pub fn search_topk(
+        &self,
+        space: &VectorSpace,
+        range: Range<u64>,
+        queries: &QueryBatch,
+        params: &Params,
+        k: usize,
+    ) -> Result<Vec<Vec<Hit>>> {
+        self.check(space, &range, queries)?;
+        if k == 0 {
+            return Err(EngineError::Parameter("top-k needs k ≥ 1".into()));
+        }
+        let nq = queries.len();
+        let parts: Vec<Vec<Vec<Hit>>> = self
+            .chunks(&range)
+            .into_par_iter()
+            .map(|r| {
+                let mut sink = TopKSink {
+                    k,
+                    lists: vec![Vec::with_capacity(k + 1); nq],
+                    worst: vec![u64::MAX; nq],
+                };
+                self.kernel
+                    .scan(&self.scan(space, r, queries, params), &mut sink);
+                sink.lists
+            })
+            .collect();
+        let mut out = vec![Vec::new(); nq];
+        for p in &parts {
+            for (o, l) in out.iter_mut().zip(p) {
+                *o = merge_topk(o, l, k);
+            }
+        }
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn merge_prefers_lower_index_on_ties() {
+        let mut a = vec![Hit { index: 5, dist: 3 }, Hit::NONE];
+        merge_best(
+            &mut a,
+            &[Hit { index: 2, dist: 3 }, Hit { index: 9, dist: 1 }],
+        );
+        assert_eq!(
+            a,
+            vec![Hit { index: 2, dist: 3 }, Hit { index: 9, dist: 1 }]
+        );
+        merge_best(
+            &mut a,
+            &[Hit { index: 7, dist: 3 }, Hit { index: 1, dist: 2 }],
+        );
+        assert_eq!(a[0].index, 2);
+        assert_eq!(a[1].index, 9);
+    }
+
+    #[test]
+    fn merge_topk_is_sorted_and_truncated() {
+        let a = [Hit { index: 1, dist: 1 }, Hit { index: 4, dist: 5 }];
+        let b = [Hit { index: 0, dist: 1 }, Hit { index: 3, dist: 2 }];
+        let m = merge_topk(&a, &b, 3);
+        assert_eq!(m.iter().map(|h| h.index).collect::<Vec<_>>(), vec![0, 1, 3]);
+    }
+}
