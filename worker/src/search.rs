@@ -140,6 +140,27 @@ impl Sink for TopKSink {
     }
 }
 
+/// Collects every distance into a query-major matrix.
+struct MatrixSink {
+    start: u64,
+    n: usize,
+    out: Vec<u64>,
+}
+
+impl Sink for MatrixSink {
+    fn row(&mut self, index: u64, d: &[u64]) {
+        let i = (index - self.start) as usize;
+        for (q, &x) in d.iter().enumerate() {
+            self.out[q * self.n + i] = x;
+        }
+    }
+
+    fn run(&mut self, q: usize, first: u64, d: &[u64]) {
+        let i = (first - self.start) as usize;
+        self.out[q * self.n + i..q * self.n + i + d.len()].copy_from_slice(d);
+    }
+}
+
 /// The search engine: a kernel and the way a range is split for rayon.
 /// The master's local search and the gRPC worker both call this.
 #[derive(Debug, Clone, Copy)]
@@ -266,6 +287,27 @@ impl Engine {
             merge_best(&mut best, p);
         }
         Ok(best)
+    }
+
+    /// Every distance of the range, query-major (`queries × range` values), from
+    /// one kernel pass; for tests against the scalar reference and for calibration.
+    pub fn distance_matrix(
+        &self,
+        space: &VectorSpace,
+        range: Range<u64>,
+        queries: &QueryBatch,
+        params: &Params,
+    ) -> Result<Vec<u64>> {
+        self.check(space, &range, queries)?;
+        let n = (range.end - range.start) as usize;
+        let mut sink = MatrixSink {
+            start: range.start,
+            n,
+            out: vec![0; n * queries.len()],
+        };
+        self.kernel
+            .scan(&self.scan(space, range, queries, params), &mut sink);
+        Ok(sink.out)
     }
 
     /// The `k` best matches per query, sorted by (distance, index); fewer when
