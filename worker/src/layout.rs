@@ -327,13 +327,38 @@ fn gather(sample: &Sample, geometry: &Geometry, x: usize, y: usize, dst: &mut [u
     }
 }
 
+/// A zeroed byte buffer whose start is 64-byte aligned, so that a 64-byte SIMD
+/// load of a vector at a multiple-of-64 offset never splits a cache line.
+#[derive(Debug, Clone)]
+pub(crate) struct AlignedBytes {
+    buf: Vec<u8>,
+    offset: usize,
+    len: usize,
+}
+
+impl AlignedBytes {
+    pub(crate) fn zeroed(len: usize) -> Self {
+        let buf = vec![0u8; len + 64];
+        let offset = buf.as_ptr().align_offset(64).min(64);
+        Self { buf, offset, len }
+    }
+
+    pub(crate) fn as_slice(&self) -> &[u8] {
+        &self.buf[self.offset..self.offset + self.len]
+    }
+
+    pub(crate) fn as_mut_slice(&mut self) -> &mut [u8] {
+        &mut self.buf[self.offset..self.offset + self.len]
+    }
+}
+
 /// Padded reference vectors of one contiguous range of global indices.
 #[derive(Debug, Clone)]
 pub struct VectorSpace {
     layout: Layout,
     start: u64,
     len: usize,
-    data: Vec<u8>,
+    data: AlignedBytes,
     positions: Vec<[u32; 2]>,
 }
 
@@ -368,11 +393,11 @@ impl VectorSpace {
         let layout = geometry.layout();
         let positions = all[range.start as usize..range.end as usize].to_vec();
         let stride = layout.stride();
-        let mut data = vec![0u8; positions.len() * stride + SLACK];
+        let mut data = AlignedBytes::zeroed(positions.len() * stride + SLACK);
         let mut tmp = vec![0u8; layout.dims()];
-        for (i, p) in positions.iter().enumerate() {
+        for (p, slot) in positions.iter().zip(data.as_mut_slice().chunks_exact_mut(stride)) {
             gather(sample, geometry, p[0] as usize, p[1] as usize, &mut tmp);
-            layout.scatter(&tmp, &mut data[i * stride..(i + 1) * stride]);
+            layout.scatter(&tmp, slot);
         }
         Ok(Self {
             layout,
@@ -396,12 +421,9 @@ impl VectorSpace {
         }
         let len = raw.len() / dims;
         let stride = layout.stride();
-        let mut data = vec![0u8; len * stride + SLACK];
-        for i in 0..len {
-            layout.scatter(
-                &raw[i * dims..(i + 1) * dims],
-                &mut data[i * stride..(i + 1) * stride],
-            );
+        let mut data = AlignedBytes::zeroed(len * stride + SLACK);
+        for (src, slot) in raw.chunks_exact(dims).zip(data.as_mut_slice().chunks_exact_mut(stride)) {
+            layout.scatter(src, slot);
         }
         Ok(Self {
             layout,
@@ -443,7 +465,8 @@ impl VectorSpace {
     /// Padded bytes of the vector with this global index.
     pub fn vector(&self, index: u64) -> Option<&[u8]> {
         let i = index.checked_sub(self.start)? as usize;
-        (i < self.len).then(|| &self.data[i * self.layout.stride()..(i + 1) * self.layout.stride()])
+        let s = self.layout.stride();
+        (i < self.len).then(|| &self.data.as_slice()[i * s..(i + 1) * s])
     }
 
     /// Bytes of vector data (without slack).
@@ -457,7 +480,7 @@ impl VectorSpace {
         let s = self.layout.stride();
         let a = (range.start - self.start) as usize * s;
         let b = (range.end - self.start) as usize * s;
-        &self.data[a..b + SLACK]
+        &self.data.as_slice()[a..b + SLACK]
     }
 }
 

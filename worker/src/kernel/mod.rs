@@ -7,7 +7,7 @@
 //! once and compared with every query while it sits in registers.
 
 use crate::error::{EngineError, Result};
-use crate::layout::{Layout, Metric, QueryBatch, Weights};
+use crate::layout::{AlignedBytes, Layout, Metric, QueryBatch, Weights};
 
 mod scalar;
 #[cfg(target_arch = "x86_64")]
@@ -163,13 +163,14 @@ impl Kernel {
     }
 }
 
-/// Pads the batch to a multiple of `group` queries with all-masked-out queries.
-pub(crate) fn padded_queries(q: &QueryBatch, group: usize) -> (Vec<u8>, Vec<u8>, usize) {
+/// Copies the batch into 64-byte aligned buffers padded to a multiple of `group`
+/// queries with all-masked-out queries: (values, masks, padded count).
+pub(crate) fn padded_queries(q: &QueryBatch, group: usize) -> (AlignedBytes, AlignedBytes, usize) {
     let s = q.layout().stride();
     let n = q.len().div_ceil(group) * group;
-    let mut v = q.all_values().to_vec();
-    let mut m = q.all_masks().to_vec();
-    v.resize(n * s, 0);
-    m.resize(n * s, 0);
+    let mut v = AlignedBytes::zeroed(n * s);
+    let mut m = AlignedBytes::zeroed(n * s);
+    v.as_mut_slice()[..q.len() * s].copy_from_slice(q.all_values());
+    m.as_mut_slice()[..q.len() * s].copy_from_slice(q.all_masks());
     (v, m, n)
 }

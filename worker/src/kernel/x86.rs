@@ -185,6 +185,7 @@ unsafe fn scan512<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
     if nq >= 8 {
         // Rows: one vector against groups of 8 queries.
         let (qv, qm, nqp) = padded_queries(scan.queries, 8);
+        let (qv, qm) = (qv.as_slice(), qm.as_slice());
         let mut row = vec![0u64; nqp];
         for i in 0..scan.count {
             let v = [vp.add(i * s); 8];
@@ -296,6 +297,7 @@ unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
     let vp = scan.vectors.as_ptr();
     if nq >= 4 {
         let (qv, qm, nqp) = padded_queries(scan.queries, 4);
+        let (qv, qm) = (qv.as_slice(), qm.as_slice());
         let mut row = vec![0u64; nqp];
         for i in 0..scan.count {
             let v = [vp.add(i * s); 4];
