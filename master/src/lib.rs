@@ -1,4 +1,14 @@
 //! texsyn: exact multi-scale block texture synthesis after Stahlhut, with the
 //! nearest-neighbour search on this machine or on a cluster of workers.
 
+pub mod benchmark;
+pub mod cli;
+pub mod colour;
+pub mod imaging;
+pub mod neighbourhood;
+pub mod pyramid;
+pub mod queue;
 pub mod search;
+pub mod synth;
+
+pub use synth::{synthesize, Config, Mode, Output, Position, Report, SynthMethod};

@@ -78,12 +78,12 @@ pub struct Geometry {
 
 impl Geometry {
     pub fn new(n: usize, m: usize) -> Result<Self> {
-        if n == 0 || n % 2 == 0 || n > MAX_SIDE {
+        if n == 0 || n.is_multiple_of(2) || n > MAX_SIDE {
             return Err(EngineError::Geometry(format!(
                 "neighbourhood side {n} must be odd and in 1..={MAX_SIDE}"
             )));
         }
-        if m != 0 && (m % 2 == 0 || m > MAX_SIDE) {
+        if m != 0 && (m.is_multiple_of(2) || m > MAX_SIDE) {
             return Err(EngineError::Geometry(format!(
                 "parent window side {m} must be 0 (none) or odd and in 1..={MAX_SIDE}"
             )));
@@ -95,7 +95,7 @@ impl Geometry {
     /// (N=9 → 5, N=11 → 7).
     pub fn parent_window_for(n: usize) -> usize {
         let half = n.div_ceil(2);
-        if half % 2 == 0 {
+        if half.is_multiple_of(2) {
             half + 1
         } else {
             half
@@ -395,7 +395,10 @@ impl VectorSpace {
         let stride = layout.stride();
         let mut data = AlignedBytes::zeroed(positions.len() * stride + SLACK);
         let mut tmp = vec![0u8; layout.dims()];
-        for (p, slot) in positions.iter().zip(data.as_mut_slice().chunks_exact_mut(stride)) {
+        for (p, slot) in positions
+            .iter()
+            .zip(data.as_mut_slice().chunks_exact_mut(stride))
+        {
             gather(sample, geometry, p[0] as usize, p[1] as usize, &mut tmp);
             layout.scatter(&tmp, slot);
         }
@@ -412,7 +415,7 @@ impl VectorSpace {
     /// indices starting at `start`. Used by benchmarks and calibration.
     pub fn from_unpadded(layout: Layout, start: u64, raw: &[u8]) -> Result<Self> {
         let dims = layout.dims();
-        if dims == 0 || raw.len() % dims != 0 {
+        if dims == 0 || !raw.len().is_multiple_of(dims) {
             return Err(EngineError::Length {
                 what: "raw vectors",
                 got: raw.len(),
@@ -422,7 +425,10 @@ impl VectorSpace {
         let len = raw.len() / dims;
         let stride = layout.stride();
         let mut data = AlignedBytes::zeroed(len * stride + SLACK);
-        for (src, slot) in raw.chunks_exact(dims).zip(data.as_mut_slice().chunks_exact_mut(stride)) {
+        for (src, slot) in raw
+            .chunks_exact(dims)
+            .zip(data.as_mut_slice().chunks_exact_mut(stride))
+        {
             layout.scatter(src, slot);
         }
         Ok(Self {

@@ -7,6 +7,7 @@ pub mod error;
 pub mod kernel;
 pub mod layout;
 pub mod search;
+pub mod service;
 
 pub use error::{EngineError, Result};
 pub use kernel::{distance, Kernel, Params};

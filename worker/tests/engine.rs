@@ -156,9 +156,9 @@ proptest! {
         for kern in Kernel::available() {
             let e = Engine::new(kern);
             let all = e.search_best(&space, 0..space.end(), &batch, &c.params).unwrap();
-            for q in 0..batch.len() {
+            for (q, hit) in all.iter().enumerate() {
                 let one = e.search_best(&space, 0..space.end(), &c.single(q), &c.params).unwrap();
-                prop_assert_eq!(one[0], all[q]);
+                prop_assert_eq!(&one[0], hit);
             }
         }
     }

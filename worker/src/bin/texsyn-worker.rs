@@ -1,29 +1,204 @@
 //! `texsyn-worker`: the search engine as a gRPC worker, and its benchmark.
+//!
+//! `texsyn-worker serve --listen ADDR ...` (or just `texsyn-worker --listen ADDR ...`)
+//! serves the engine; `texsyn-worker bench` measures the kernel.
+use std::io::Write;
+use std::net::SocketAddr;
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 use texsyn_worker::bench::{self, BenchConfig};
+use texsyn_worker::service::{self, TlsIdentity, WorkerConfig, DEFAULT_LISTEN};
 use texsyn_worker::Kernel;
 
 #[derive(Parser)]
 #[command(
     name = "texsyn-worker",
     version,
-    about = "texsyn search worker and kernel benchmark"
+    about = "texsyn search worker and kernel benchmark",
+    args_conflicts_with_subcommands = true,
+    after_help = "Without a subcommand the worker serves: texsyn-worker --listen 127.0.0.1:7878"
 )]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+    #[command(flatten)]
+    serve: ServeArgs,
 }
 
 #[derive(Subcommand)]
 enum Command {
+    /// Serve the search engine over gRPC to a texsyn master.
+    #[command(
+        after_help = "Prints `listening on ADDR` on stdout once bound (use port 0 for a free port).\n\
+                      Example: texsyn-worker serve --listen 0.0.0.0:7878 --token-file /etc/texsyn/token"
+    )]
+    Serve(ServeArgs),
     /// Measure the search kernel: GB/s per core for single queries and batches.
     #[command(
         after_help = "Example: texsyn-worker bench --vectors 240000 --dims 192 --queries 64"
     )]
     Bench(BenchArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct ServeArgs {
+    /// Address to listen on (default loopback only; port 0 = any free port).
+    #[arg(long, default_value = DEFAULT_LISTEN)]
+    listen: SocketAddr,
+    /// Search threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// File holding the shared token every call must carry (`authorization: Bearer <token>`).
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    /// TLS certificate chain (PEM); needs --tls-key.
+    #[arg(long, requires = "tls_key")]
+    tls_cert: Option<PathBuf>,
+    /// TLS private key (PEM); needs --tls-cert.
+    #[arg(long, requires = "tls_cert")]
+    tls_key: Option<PathBuf>,
+    /// Most memory one job may hold, in bytes (suffixes K, M, G allowed; default 3/4 of RAM).
+    #[arg(long, value_parser = parse_bytes)]
+    max_memory: Option<u64>,
+    /// Largest gRPC message, in bytes (suffixes K, M, G allowed).
+    #[arg(long, value_parser = parse_bytes, default_value = "64M")]
+    max_message: u64,
+    /// Free a job's memory this many seconds after its last call (0 = never).
+    #[arg(long, default_value_t = 300)]
+    idle_timeout: u64,
+    /// Kernel: auto, scalar, avx2, avx512.
+    #[arg(long, default_value = "auto")]
+    kernel: String,
+}
+
+/// Parses `123`, `64K`, `64M`, `8G` (binary units).
+fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let (num, shift) = match t.char_indices().last() {
+        Some((i, 'k' | 'K')) => (&t[..i], 10),
+        Some((i, 'm' | 'M')) => (&t[..i], 20),
+        Some((i, 'g' | 'G')) => (&t[..i], 30),
+        _ => (t, 0),
+    };
+    let n: u64 = num
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a byte count (e.g. 1048576, 64M, 8G)"))?;
+    n.checked_mul(1u64 << shift)
+        .ok_or_else(|| format!("'{s}' is too large"))
+}
+
+impl TryFrom<ServeArgs> for WorkerConfig {
+    type Error = anyhow::Error;
+
+    fn try_from(a: ServeArgs) -> anyhow::Result<Self> {
+        let defaults = WorkerConfig::default();
+        let token = a
+            .token_file
+            .as_deref()
+            .map(WorkerConfig::read_token_file)
+            .transpose()?;
+        let tls = match (&a.tls_cert, &a.tls_key) {
+            (Some(c), Some(k)) => Some(TlsIdentity::from_files(c, k)?),
+            (None, None) => None,
+            (Some(_), None) => bail!("--tls-cert was given without --tls-key; TLS needs both"),
+            (None, Some(_)) => bail!("--tls-key was given without --tls-cert; TLS needs both"),
+        };
+        let max_message = usize::try_from(a.max_message)
+            .with_context(|| format!("--max-message {} is too large", a.max_message))?;
+        let config = WorkerConfig {
+            listen: a.listen,
+            threads: a.threads.unwrap_or(defaults.threads),
+            token,
+            tls,
+            max_memory: a.max_memory.unwrap_or(defaults.max_memory),
+            max_message,
+            idle_timeout: (a.idle_timeout > 0).then(|| Duration::from_secs(a.idle_timeout)),
+            kernel: Kernel::from_name(&a.kernel)?,
+        };
+        config.validate()?;
+        Ok(config)
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let default_level = match cli.command {
+        Some(Command::Bench(_)) => "warn",
+        _ => "info",
+    };
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_level)),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("texsyn-worker: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        None => serve(cli.serve),
+        Some(Command::Serve(a)) => serve(a),
+        Some(Command::Bench(a)) => bench(a),
+    }
+}
+
+fn serve(args: ServeArgs) -> anyhow::Result<()> {
+    let config = WorkerConfig::try_from(args)?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("texsyn-io")
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    runtime.block_on(async {
+        let listener = tokio::net::TcpListener::bind(config.listen)
+            .await
+            .with_context(|| format!("cannot listen on {}", config.listen))?;
+        let local = listener.local_addr()?;
+        tracing::info!(%local, "bound");
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "{}", service::listening_line(local))?;
+        out.flush()?;
+        drop(out);
+        service::serve(config, listener, shutdown_signal()).await
+    })
+}
+
+/// Completes on ctrl-c or SIGTERM.
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        if tokio::signal::ctrl_c().await.is_err() {
+            std::future::pending::<()>().await;
+        }
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {}
+        () = term => {}
+    }
 }
 
 #[derive(clap::Args)]
@@ -68,45 +243,26 @@ struct BenchArgs {
     json: bool,
 }
 
-fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
-        .with_writer(std::io::stderr)
-        .init();
-    let cli = Cli::parse();
-    match run(cli) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("texsyn-worker: error: {e:#}");
-            ExitCode::FAILURE
-        }
+fn bench(a: BenchArgs) -> anyhow::Result<()> {
+    let cfg = BenchConfig {
+        vectors: a.vectors,
+        dims: a.dims,
+        lo_dims: a.lo_dims,
+        queries: a.queries,
+        threads: a.threads,
+        kernel: Kernel::from_name(&a.kernel)?,
+        seed: a.seed,
+        defined: a.defined,
+        min_time: Duration::from_secs_f64(a.min_time.max(0.0)),
+        vectors_file: a.vectors_file,
+        queries_file: a.queries_file,
+        answers_file: a.answers_file,
+    };
+    let report = bench::run(&cfg)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{report}");
     }
-}
-
-fn run(cli: Cli) -> anyhow::Result<()> {
-    match cli.command {
-        Command::Bench(a) => {
-            let cfg = BenchConfig {
-                vectors: a.vectors,
-                dims: a.dims,
-                lo_dims: a.lo_dims,
-                queries: a.queries,
-                threads: a.threads,
-                kernel: Kernel::from_name(&a.kernel)?,
-                seed: a.seed,
-                defined: a.defined,
-                min_time: Duration::from_secs_f64(a.min_time.max(0.0)),
-                vectors_file: a.vectors_file,
-                queries_file: a.queries_file,
-                answers_file: a.answers_file,
-            };
-            let report = bench::run(&cfg)?;
-            if a.json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
-            } else {
-                print!("{report}");
-            }
-            Ok(())
-        }
-    }
+    Ok(())
 }

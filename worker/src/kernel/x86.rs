@@ -43,9 +43,9 @@ impl Plan {
         Self {
             hi_pad: l.hi_pad,
             hi64: l.hi_pad / 64,
-            hi32: l.hi_pad % 64 != 0,
+            hi32: !l.hi_pad.is_multiple_of(64),
             lo64: l.lo_pad / 64,
-            lo32: l.lo_pad % 64 != 0,
+            lo32: !l.lo_pad.is_multiple_of(64),
         }
     }
 }

@@ -1,0 +1,442 @@
+//! The `texsyn` command line: clap arguments turned into a validated
+//! [`Config`] and [`Mode`], progress bars, and the outputs written atomically.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, ensure, Context, Result};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use texsyn_worker::{Engine, Metric, Weights};
+
+use crate::imaging::{self, ColorImage};
+use crate::search::LocalSearch;
+use crate::synth::{self, Config, Mode, Position, Progress, SynthMethod};
+
+const EXAMPLES: &str = "Examples:
+  texsyn extend sample.png -o out.png --size 1024x1024 --block 5 --neighbourhood 11 --levels 4 --tileable --seed 7
+  texsyn fill photo.png --mask holes.png -o out.png
+  texsyn synth sample.png -o out.png --size 512x512
+  texsyn synth sample.png -o out.png --size 256x256 --method scanline --report run.json
+  texsyn bench paper";
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "texsyn",
+    version,
+    about = "Exact multi-scale block texture synthesis (Stahlhut): fill holes, extend and synthesise textures",
+    after_help = EXAMPLES
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Fill the holes of an image (constrained synthesis); the mask is white where to fill.
+    #[command(after_help = "Example: texsyn fill photo.png --mask holes.png -o out.png")]
+    Fill(FillArgs),
+    /// Grow a larger canvas around the sample.
+    #[command(
+        after_help = "Example: texsyn extend sample.png -o out.png --size 1024x1024 --tileable"
+    )]
+    Extend(ExtendArgs),
+    /// Synthesise a new texture of any size from the sample.
+    #[command(after_help = "Example: texsyn synth sample.png -o out.png --size 512x512 --seed 7")]
+    Synth(SynthArgs),
+    /// Benchmarks: the paper's configurations end to end.
+    Bench(BenchArgs),
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct Common {
+    /// Output image (png, jpg, tif, bmp, webp); written atomically.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Block size B (odd, 1..=11).
+    #[arg(long, default_value_t = 3)]
+    pub block: usize,
+    /// Neighbourhood size N (odd, larger than the block).
+    #[arg(long, alias = "neighborhood", default_value_t = 9)]
+    pub neighbourhood: usize,
+    /// Parent window M on the coarser level (odd; default covers N).
+    #[arg(long)]
+    pub parent_window: Option<usize>,
+    /// Pyramid levels (0 = automatic).
+    #[arg(long, default_value_t = 0)]
+    pub levels: usize,
+    /// Weights of the two neighbourhood parts, HI,LO (integers).
+    #[arg(long, default_value = "1,2")]
+    pub weights: String,
+    /// Distance metric.
+    #[arg(long, value_enum, default_value_t = MetricArg::L1)]
+    pub metric: MetricArg,
+    /// Make the output tile seamlessly (toroidal canvas).
+    #[arg(long)]
+    pub tileable: bool,
+    /// Random seed (seed patch, noise).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Deterministic batch size K (1 = the paper's strict block order).
+    #[arg(long, default_value_t = 16)]
+    pub batch: usize,
+    /// Chroma blur radius at patch borders (0 = off).
+    #[arg(long, default_value_t = 0)]
+    pub chroma_blur: usize,
+    /// Also write the copy map as a picture (R = source x, G = source y).
+    #[arg(long)]
+    pub copy_map: Option<PathBuf>,
+    /// Also write each level's luminance into this directory.
+    #[arg(long)]
+    pub levels_dir: Option<PathBuf>,
+    /// Also write a JSON run report.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Search threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Search kernel: auto, scalar, avx2, avx512.
+    #[arg(long, default_value = "auto")]
+    pub kernel: String,
+    /// No progress bars.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+pub enum MetricArg {
+    L1,
+    L2,
+}
+
+#[derive(Args, Debug)]
+pub struct FillArgs {
+    /// The image with holes.
+    pub input: PathBuf,
+    /// Mask image of the same size: white = fill, black = keep.
+    #[arg(long)]
+    pub mask: PathBuf,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Args, Debug)]
+pub struct ExtendArgs {
+    /// The sample texture.
+    pub input: PathBuf,
+    /// Canvas size WxH.
+    #[arg(long)]
+    pub size: String,
+    /// Where the sample goes: center or X,Y (top-left corner).
+    #[arg(long, default_value = "center")]
+    pub position: String,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Args, Debug)]
+pub struct SynthArgs {
+    /// The sample texture.
+    pub input: PathBuf,
+    /// Output size WxH.
+    #[arg(long)]
+    pub size: String,
+    /// grow: from a seeded sample patch; scanline: the paper's full synthesis.
+    #[arg(long, value_enum, default_value_t = MethodArg::Grow)]
+    pub method: MethodArg,
+    /// Texture mixing: use FILE as the sample of pyramid level L (0 = finest), as L=FILE.
+    #[arg(long = "level-sample", value_name = "L=FILE")]
+    pub level_samples: Vec<String>,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+pub enum MethodArg {
+    Grow,
+    Scanline,
+}
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Which configuration: a = 192×192 from 64×64 (9×9, 3×3, 3 levels); b = 1000×1000
+    /// from 500×500 (11×11, 5×5); paper = both.
+    #[arg(default_value = "paper")]
+    pub which: String,
+    /// Directory with the texture photos (default ../shared/textures).
+    #[arg(long)]
+    pub textures: Option<PathBuf>,
+    /// Batch size K.
+    #[arg(long, default_value_t = 64)]
+    pub batch: usize,
+    /// Repetitions of configuration (a); the best is reported.
+    #[arg(long, default_value_t = 5)]
+    pub reps: usize,
+    /// Search threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Write the outputs into this directory.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Parses `WxH`.
+pub fn parse_size(s: &str) -> Result<(usize, usize)> {
+    let (w, h) = s
+        .to_ascii_lowercase()
+        .split_once('x')
+        .map(|(a, b)| (a.trim().to_string(), b.trim().to_string()))
+        .with_context(|| format!("size '{s}' is not WxH, e.g. --size 512x512"))?;
+    let w: usize = w
+        .parse()
+        .with_context(|| format!("width '{w}' in --size '{s}' is not a number"))?;
+    let h: usize = h
+        .parse()
+        .with_context(|| format!("height '{h}' in --size '{s}' is not a number"))?;
+    ensure!(w > 0 && h > 0, "size {w}x{h} is empty; give both sides ≥ 1");
+    ensure!(
+        w.saturating_mul(h) <= synth::MAX_CANVAS_PIXELS && w.max(h) <= imaging::MAX_SIDE,
+        "size {w}x{h} is too large: the limit is {} pixels and {} per side",
+        synth::MAX_CANVAS_PIXELS,
+        imaging::MAX_SIDE
+    );
+    Ok((w, h))
+}
+
+fn parse_weights(s: &str) -> Result<Weights> {
+    let (a, b) = s
+        .split_once(',')
+        .with_context(|| format!("weights '{s}' are not HI,LO, e.g. --weights 1,2"))?;
+    let hi: u32 = a
+        .trim()
+        .parse()
+        .with_context(|| format!("weight '{a}' is not a whole number"))?;
+    let lo: u32 = b
+        .trim()
+        .parse()
+        .with_context(|| format!("weight '{b}' is not a whole number"))?;
+    Ok(Weights::new(hi, lo)?)
+}
+
+fn parse_position(s: &str) -> Result<Position> {
+    if s.eq_ignore_ascii_case("center") || s.eq_ignore_ascii_case("centre") {
+        return Ok(Position::Center);
+    }
+    let (x, y) = s
+        .split_once(',')
+        .with_context(|| format!("position '{s}' is not 'center' or X,Y"))?;
+    Ok(Position::At(
+        x.trim()
+            .parse()
+            .with_context(|| format!("x '{x}' is not a number"))?,
+        y.trim()
+            .parse()
+            .with_context(|| format!("y '{y}' is not a number"))?,
+    ))
+}
+
+impl TryFrom<&Common> for Config {
+    type Error = anyhow::Error;
+
+    fn try_from(c: &Common) -> Result<Self> {
+        let cfg = Config {
+            block: c.block,
+            neighbourhood: c.neighbourhood,
+            parent_window: c.parent_window,
+            levels: c.levels,
+            weights: parse_weights(&c.weights)?,
+            metric: match c.metric {
+                MetricArg::L1 => Metric::L1,
+                MetricArg::L2 => Metric::L2,
+            },
+            tileable: c.tileable,
+            seed: c.seed,
+            batch: c.batch,
+            chroma_blur: c.chroma_blur,
+            level_samples: Vec::new(),
+        };
+        cfg.validate()?;
+        Ok(cfg)
+    }
+}
+
+/// Progress bars per level (hidden with --quiet or when stderr is not a terminal).
+struct Bars {
+    bar: std::sync::Mutex<Option<ProgressBar>>,
+    quiet: bool,
+}
+
+impl Progress for Bars {
+    fn level_start(&self, level: usize, levels: usize, blocks: u64) {
+        if self.quiet {
+            return;
+        }
+        let bar = ProgressBar::new(blocks);
+        bar.set_style(
+            ProgressStyle::with_template(
+                "level {msg} [{bar:40}] {pos}/{len} blocks {elapsed_precise} eta {eta}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+        );
+        bar.set_message(format!("{level} ({}/{levels})", levels - level));
+        *self.bar.lock().unwrap_or_else(|e| e.into_inner()) = Some(bar);
+    }
+
+    fn advance(&self, blocks: u64) {
+        if let Some(b) = self.bar.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
+            b.inc(blocks);
+        }
+    }
+
+    fn level_end(&self, level: usize) {
+        if let Some(b) = self.bar.lock().unwrap_or_else(|e| e.into_inner()).take() {
+            b.finish_and_clear();
+        }
+        tracing::info!(level, "level done");
+    }
+}
+
+fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
+    let mut b = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = threads {
+        ensure!((1..=1024).contains(&t), "--threads {t} must be in 1..=1024");
+        b = b.num_threads(t);
+    }
+    b.build().context("cannot start the search threads")
+}
+
+fn write_outputs(common: &Common, out: &synth::Output) -> Result<()> {
+    imaging::save_color(&common.output, &out.image)?;
+    if let Some(p) = &common.copy_map {
+        let img = crate::colour::copy_map_image(
+            &out.copy_map,
+            out.image.width,
+            out.image.height,
+            out.sample_size[0],
+            out.sample_size[1],
+        );
+        imaging::save_color(p, &img)?;
+    }
+    if let Some(dir) = &common.levels_dir {
+        for (l, g) in out.levels.iter().enumerate() {
+            imaging::save_gray(&dir.join(format!("level{l}.png")), g)?;
+        }
+    }
+    if let Some(p) = &common.report {
+        let json = serde_json::to_vec_pretty(&out.report)?;
+        imaging::save_bytes(p, &json)?;
+    }
+    Ok(())
+}
+
+fn check_outputs(common: &Common) -> Result<()> {
+    imaging::check_writable(&common.output)?;
+    if let Some(p) = &common.copy_map {
+        imaging::check_writable(p)?;
+    }
+    if let Some(dir) = &common.levels_dir {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create --levels-dir {}", dir.display()))?;
+        imaging::check_writable(&dir.join("level0.png"))?;
+    }
+    if let Some(p) = &common.report {
+        imaging::check_writable_any(p)?;
+    }
+    Ok(())
+}
+
+/// Runs one synthesis command end to end.
+fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) -> Result<()> {
+    check_outputs(common)?;
+    let engine = Engine::with_kernel_name(&common.kernel)?;
+    let pool = thread_pool(common.threads)?;
+    let bars = Bars {
+        bar: std::sync::Mutex::new(None),
+        quiet: common.quiet,
+    };
+    let mut backend = LocalSearch::new(engine);
+    let t = Instant::now();
+    let out = pool.install(|| synth::synthesize(sample, &mode, &cfg, &mut backend, &bars))?;
+    tracing::info!(seconds = t.elapsed().as_secs_f64(), search = %out.report.search, "synthesis done");
+    write_outputs(common, &out)?;
+    if !common.quiet {
+        eprintln!(
+            "wrote {} ({}×{}, {} levels, {:.2} s)",
+            common.output.display(),
+            out.image.width,
+            out.image.height,
+            out.report.levels,
+            out.report.synthesis_seconds
+        );
+    }
+    Ok(())
+}
+
+/// Entry point of the binary after argument parsing.
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Fill(a) => {
+            let cfg = Config::try_from(&a.common)?;
+            let img = imaging::load_color(&a.input)?;
+            let holes = imaging::load_mask(&a.mask, img.width, img.height)?;
+            run_synthesis(&img, Mode::Fill { holes }, cfg, &a.common)
+        }
+        Command::Extend(a) => {
+            let cfg = Config::try_from(&a.common)?;
+            let (width, height) = parse_size(&a.size)?;
+            let position = parse_position(&a.position)?;
+            let img = imaging::load_color(&a.input)?;
+            run_synthesis(
+                &img,
+                Mode::Extend {
+                    width,
+                    height,
+                    position,
+                },
+                cfg,
+                &a.common,
+            )
+        }
+        Command::Synth(a) => {
+            let mut cfg = Config::try_from(&a.common)?;
+            let (width, height) = parse_size(&a.size)?;
+            for spec in &a.level_samples {
+                let (l, file) = spec.split_once('=').with_context(|| {
+                    format!("--level-sample '{spec}' is not L=FILE, e.g. 0=detail.png")
+                })?;
+                let l: usize = l
+                    .trim()
+                    .parse()
+                    .with_context(|| format!("level '{l}' in --level-sample is not a number"))?;
+                cfg.level_samples
+                    .push((l, imaging::load_color(Path::new(file))?));
+            }
+            let img = imaging::load_color(&a.input)?;
+            let method = match a.method {
+                MethodArg::Grow => SynthMethod::Grow,
+                MethodArg::Scanline => SynthMethod::Scanline,
+            };
+            run_synthesis(
+                &img,
+                Mode::Synth {
+                    width,
+                    height,
+                    method,
+                },
+                cfg,
+                &a.common,
+            )
+        }
+        Command::Bench(a) => crate::benchmark::run(&a),
+    }
+}
+
+/// Fails unless `path` is an existing directory (used by the bench).
+pub(crate) fn existing_dir(path: &Path) -> Result<()> {
+    if !path.is_dir() {
+        bail!("{} is not a directory", path.display());
+    }
+    Ok(())
+}

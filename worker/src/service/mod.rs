@@ -1,0 +1,188 @@
+//! The gRPC worker (DESIGN §4, Stahlhut §8): serves the search [`Engine`] of
+//! this crate to a master over the `texsyn.v1.Worker` protocol.
+//!
+//! A worker holds, per job, the level images the master sent and the reference
+//! vectors of the index range it was assigned; the master keeps the truth (the
+//! canvas and the partition table), so everything here is a cache it can rebuild.
+//! Searches run on a dedicated rayon pool, never on the gRPC I/O threads.
+//!
+//! Security: the listener binds where it is told (default loopback), a shared
+//! token is checked on every call (health checks included), TLS is optional,
+//! message sizes and memory are capped, and every request is validated before
+//! anything is allocated for it: a malformed request gets a gRPC status, never a
+//! panic.
+//!
+//! [`Engine`]: crate::search::Engine
+
+mod auth;
+mod client;
+mod config;
+mod convert;
+mod rpc;
+mod state;
+
+use std::future::Future;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::Context;
+use texsyn_proto::v1::worker_server::WorkerServer;
+use tokio::net::TcpListener;
+use tonic::codegen::http;
+use tonic::service::InterceptorLayer;
+use tonic::transport::server::TcpIncoming;
+use tonic::transport::{Identity, Server, ServerTlsConfig};
+
+pub use client::{
+    best_hits, geometry_to_proto, hit_from_proto, parse_listening_line, plane_to_proto, topk_hits,
+    BearerAuth,
+};
+pub use config::{
+    default_max_memory, TlsIdentity, WorkerConfig, DEFAULT_IDLE_TIMEOUT, DEFAULT_LISTEN,
+    DEFAULT_MAX_MESSAGE,
+};
+pub use convert::{MAX_JOB_ID_LEN, MAX_QUERIES, MAX_TOP_K};
+pub use rpc::WorkerService;
+
+use auth::TokenCheck;
+use state::Shared;
+
+/// How long open connections (a master's long-lived search streams) get to
+/// finish after the shutdown signal before the server stops anyway.
+pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+
+/// tonic reports a message over the size limit as OUT_OF_RANGE; gRPC says
+/// RESOURCE_EXHAUSTED. No handler here returns OUT_OF_RANGE, so the code is
+/// translated for every status that travels in the response headers (unary
+/// calls); search streams translate theirs in the stream.
+fn size_status_in_headers<B>(mut response: http::Response<B>) -> http::Response<B> {
+    let out_of_range = (tonic::Code::OutOfRange as i32).to_string();
+    if response
+        .headers()
+        .get("grpc-status")
+        .is_some_and(|v| v.as_bytes() == out_of_range.as_bytes())
+    {
+        let exhausted = (tonic::Code::ResourceExhausted as i32).to_string();
+        if let Ok(v) = http::HeaderValue::from_str(&exhausted) {
+            response.headers_mut().insert("grpc-status", v);
+        }
+    }
+    response
+}
+
+/// Turns tonic's OUT_OF_RANGE for an oversized message into RESOURCE_EXHAUSTED.
+pub(crate) fn size_status(status: tonic::Status) -> tonic::Status {
+    if status.code() == tonic::Code::OutOfRange {
+        tonic::Status::resource_exhausted(status.message().to_string())
+    } else {
+        status
+    }
+}
+
+/// The line printed on stdout once the listener is bound: `listening on ADDR`.
+/// A parent that started the worker with port 0 reads the real port from it
+/// (see [`parse_listening_line`]).
+pub fn listening_line(addr: std::net::SocketAddr) -> String {
+    format!("listening on {addr}")
+}
+
+/// Serves the worker on an already bound `listener` until `shutdown` completes.
+///
+/// Bind first (port 0 is fine), read `listener.local_addr()`, then call this; the
+/// binary prints [`listening_line`] in between. The health service
+/// (`grpc.health.v1`) reports `texsyn.v1.Worker` as SERVING while this runs.
+/// On shutdown, running search streams end with UNAVAILABLE and open
+/// connections get [`SHUTDOWN_GRACE`] to close.
+pub async fn serve(
+    config: WorkerConfig,
+    listener: TcpListener,
+    shutdown: impl Future<Output = ()> + Send,
+) -> anyhow::Result<()> {
+    config.validate()?;
+    let local = listener
+        .local_addr()
+        .context("the listener has no local address")?;
+    if config.token.is_none() && !local.ip().is_loopback() {
+        tracing::warn!(
+            %local,
+            "listening on a non-loopback address without --token-file: anyone who can reach it may use this worker"
+        );
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(config.threads)
+        .thread_name(|i| format!("texsyn-search-{i}"))
+        .build()
+        .context("cannot start the search thread pool")?;
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    let shared = Arc::new(Shared::new(&config, pool, stop_rx));
+    let reaper = config
+        .idle_timeout
+        .map(|idle| tokio::spawn(state::reap_idle_jobs(shared.clone(), idle)));
+
+    let service = WorkerService::new(shared.clone());
+    let worker = WorkerServer::new(service)
+        .max_decoding_message_size(config.max_message)
+        .max_encoding_message_size(config.max_message);
+    let (health, health_service) = tonic_health::server::health_reporter();
+    health.set_serving::<WorkerServer<WorkerService>>().await;
+
+    let mut builder = Server::builder()
+        .tcp_nodelay(true)
+        .http2_keepalive_interval(Some(Duration::from_secs(30)))
+        .http2_keepalive_timeout(Some(Duration::from_secs(20)));
+    if let Some(tls) = &config.tls {
+        let identity = Identity::from_pem(&tls.cert_pem, &tls.key_pem);
+        builder = builder
+            .tls_config(ServerTlsConfig::new().identity(identity))
+            .context("invalid TLS certificate or key")?;
+    }
+    let layers = tower::ServiceBuilder::new()
+        .map_response(size_status_in_headers)
+        .layer(InterceptorLayer::new(TokenCheck::new(
+            config.token.as_deref(),
+        )));
+    let router = builder
+        .layer(layers)
+        .add_service(health_service)
+        .add_service(worker);
+
+    tracing::info!(
+        %local,
+        threads = config.threads,
+        kernel = shared.engine.kernel().name(),
+        tls = config.tls.is_some(),
+        token = config.token.is_some(),
+        max_message = config.max_message,
+        max_memory = config.max_memory,
+        "texsyn worker listening"
+    );
+
+    let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
+    let (signal_tx, signal_rx) = tokio::sync::oneshot::channel::<()>();
+    let server = router.serve_with_incoming_shutdown(incoming, async {
+        let _ = signal_rx.await;
+    });
+    tokio::pin!(server);
+    tokio::pin!(shutdown);
+    let result = tokio::select! {
+        r = &mut server => r,
+        () = &mut shutdown => {
+            tracing::info!("shutting down");
+            health.set_not_serving::<WorkerServer<WorkerService>>().await;
+            let _ = stop_tx.send(true);
+            let _ = signal_tx.send(());
+            match tokio::time::timeout(SHUTDOWN_GRACE, &mut server).await {
+                Ok(r) => r,
+                Err(_) => {
+                    tracing::warn!("connections still open after {:?}; stopping anyway", SHUTDOWN_GRACE);
+                    Ok(())
+                }
+            }
+        }
+    };
+    if let Some(r) = reaper {
+        r.abort();
+    }
+    shared.clear();
+    result.context("gRPC server failed")
+}

@@ -1,0 +1,437 @@
+//! The `texsyn.v1.Worker` RPCs.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use texsyn_proto::v1 as proto;
+use texsyn_proto::v1::worker_server::Worker;
+use texsyn_proto::PROTOCOL_VERSION;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::{Request, Response, Status, Streaming};
+
+use super::convert::{
+    check_job_id, engine_status, geometry_from_proto, invalid, OwnedPlane, MAX_QUERIES, MAX_TOP_K,
+};
+use super::state::{Assigned, Level, Shared};
+use crate::layout::{reference_positions, Layout, QueryBatch, VectorSpace, SLACK};
+use crate::search::Hit;
+
+/// Calibration size used for a 0 in the request.
+const CAL_VECTORS: u32 = 65_536;
+const CAL_DIMS: u32 = 106;
+const CAL_QUERIES: u32 = 32;
+/// Calibration caps.
+const CAL_MAX_VECTORS: u32 = 1 << 20;
+const CAL_MAX_QUERIES: u32 = 256;
+const CAL_MAX_BYTES: u64 = 256 << 20;
+/// Upper bound of one encoded `Hit` in a `SearchResult` (tag, two varints, length).
+const HIT_WIRE_BYTES: usize = 24;
+
+/// The gRPC service: one per server, cheap to clone.
+#[derive(Clone)]
+pub struct WorkerService {
+    shared: Arc<Shared>,
+}
+
+impl WorkerService {
+    pub(crate) fn new(shared: Arc<Shared>) -> Self {
+        Self { shared }
+    }
+}
+
+fn exhausted(msg: impl Into<String>) -> Status {
+    Status::resource_exhausted(msg)
+}
+
+/// The 1-minute load average from /proc/loadavg (0 where unavailable).
+fn load_average() -> f64 {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse().ok())
+        .unwrap_or(0.0)
+}
+
+#[tonic::async_trait]
+impl Worker for WorkerService {
+    async fn info(
+        &self,
+        request: Request<proto::InfoRequest>,
+    ) -> Result<Response<proto::InfoReply>, Status> {
+        let asked = request.get_ref().protocol_version;
+        if asked != PROTOCOL_VERSION {
+            return Err(Status::failed_precondition(format!(
+                "protocol version mismatch: the master speaks version {asked}, this worker ({}) speaks version {PROTOCOL_VERSION}; run the same texsyn release on both",
+                env!("CARGO_PKG_VERSION")
+            )));
+        }
+        let s = &self.shared;
+        Ok(Response::new(proto::InfoReply {
+            protocol_version: PROTOCOL_VERSION,
+            version: env!("CARGO_PKG_VERSION").to_string(),
+            cores: std::thread::available_parallelism().map_or(1, |n| n.get()) as u32,
+            threads: s.threads as u32,
+            load_average: load_average(),
+            memory_in_use: s.memory_in_use(),
+            memory_limit: s.max_memory,
+            kernel: s.engine.kernel().name().to_string(),
+            calibrated_vectors_per_second: s.calibrated(),
+            max_message_bytes: s.max_message as u64,
+            jobs: s.job_count() as u32,
+        }))
+    }
+
+    async fn calibrate(
+        &self,
+        request: Request<proto::CalibrateRequest>,
+    ) -> Result<Response<proto::CalibrateReply>, Status> {
+        let r = request.into_inner();
+        let or = |v: u32, d: u32| if v == 0 { d } else { v };
+        let (vectors, dims, queries) = (
+            or(r.vectors, CAL_VECTORS),
+            or(r.dims, CAL_DIMS),
+            or(r.queries, CAL_QUERIES),
+        );
+        if vectors > CAL_MAX_VECTORS || queries > CAL_MAX_QUERIES {
+            return Err(invalid(format!(
+                "calibration of {vectors} vectors × {queries} queries exceeds the caps of {CAL_MAX_VECTORS} vectors and {CAL_MAX_QUERIES} queries"
+            )));
+        }
+        let layout = Layout::checked(dims as usize, 0).map_err(engine_status)?;
+        let bytes = u64::from(vectors) * (layout.dims() + layout.stride()) as u64;
+        let cap = CAL_MAX_BYTES.min(self.shared.max_memory);
+        if bytes > cap {
+            return Err(invalid(format!(
+                "calibration of {vectors} vectors × {dims} dims needs {bytes} bytes; the cap is {cap}"
+            )));
+        }
+        let engine = self.shared.engine;
+        let (pairs_per_second, seconds) = self
+            .shared
+            .run(move || -> crate::Result<(f64, f64)> {
+                let mut rng = ChaCha8Rng::seed_from_u64(r.seed);
+                let n = vectors as usize * layout.dims();
+                let raw: Vec<u8> = (0..n).map(|_| rng.random()).collect();
+                let space = VectorSpace::from_unpadded(layout, 0, &raw)?;
+                drop(raw);
+                let mut batch = QueryBatch::new(layout);
+                let mut q = vec![0u8; layout.dims()];
+                for _ in 0..queries {
+                    rng.fill(&mut q[..]);
+                    batch.push_full(&q)?;
+                }
+                let params = crate::kernel::Params::default();
+                let mut best = f64::INFINITY;
+                for _ in 0..2 {
+                    let t = Instant::now();
+                    engine.search_best(&space, 0..space.end(), &batch, &params)?;
+                    best = best.min(t.elapsed().as_secs_f64());
+                }
+                let pairs = f64::from(vectors) * f64::from(queries);
+                Ok((pairs / best.max(1e-9), best))
+            })
+            .await?
+            .map_err(engine_status)?;
+        self.shared.set_calibrated(pairs_per_second);
+        tracing::info!(vectors, dims, queries, pairs_per_second, "calibrated");
+        Ok(Response::new(proto::CalibrateReply {
+            pairs_per_second,
+            seconds,
+        }))
+    }
+
+    async fn load_level(
+        &self,
+        request: Request<proto::LoadLevelRequest>,
+    ) -> Result<Response<proto::LoadLevelReply>, Status> {
+        let r = request.into_inner();
+        check_job_id(&r.job_id)?;
+        let (geometry, params) = geometry_from_proto(r.geometry.as_ref())?;
+        let sample = OwnedPlane::from_proto(
+            r.sample
+                .ok_or_else(|| invalid("the sample plane is missing"))?,
+            "sample",
+        )?;
+        let parent = r
+            .parent
+            .map(|p| OwnedPlane::from_proto(p, "parent"))
+            .transpose()?;
+        match (geometry.m, &parent) {
+            (0, Some(_)) => {
+                return Err(invalid(
+                    "a parent plane was given but the geometry has no parent window (parent_window = 0)",
+                ))
+            }
+            (m, None) if m > 0 => {
+                return Err(invalid(format!(
+                    "the geometry has a {m}×{m} parent window but no parent plane was given"
+                )))
+            }
+            _ => {}
+        }
+        let planes = sample.bytes() + parent.as_ref().map_or(0, OwnedPlane::bytes);
+        // Worst case: every pixel is a reference position (8 bytes each).
+        let bound = planes + sample.width as u64 * sample.height as u64 * 8;
+        if bound > self.shared.max_memory {
+            return Err(exhausted(format!(
+                "level {} of job '{}' may need {bound} bytes, over --max-memory {}",
+                r.level, r.job_id, self.shared.max_memory
+            )));
+        }
+        self.shared.begin_level(&r.job_id)?;
+        let mut level = Level {
+            level: r.level,
+            geometry,
+            params,
+            sample,
+            parent,
+            positions: Vec::new(),
+            bytes: planes,
+        };
+        let t = Instant::now();
+        let level = self
+            .shared
+            .run(move || -> crate::Result<Level> {
+                let mut positions = reference_positions(&level.sample(), &level.geometry)?;
+                positions.shrink_to_fit();
+                level.bytes += (positions.capacity() * std::mem::size_of::<[u32; 2]>()) as u64;
+                level.positions = positions;
+                Ok(level)
+            })
+            .await?
+            .map_err(engine_status)?;
+        let (total, bytes) = (level.total(), level.bytes);
+        self.shared.install_level(&r.job_id, Arc::new(level));
+        tracing::info!(
+            job = r.job_id,
+            level = r.level,
+            total,
+            bytes,
+            seconds = t.elapsed().as_secs_f64(),
+            "level loaded"
+        );
+        Ok(Response::new(proto::LoadLevelReply {
+            total_vectors: total,
+            bytes,
+        }))
+    }
+
+    async fn assign(
+        &self,
+        request: Request<proto::AssignRequest>,
+    ) -> Result<Response<proto::AssignReply>, Status> {
+        let r = request.into_inner();
+        check_job_id(&r.job_id)?;
+        let level = self.shared.level(&r.job_id, r.level)?;
+        if r.lbg_probes != 0 {
+            return Err(Status::unimplemented(
+                "this worker searches exhaustively only; send lbg_probes = 0",
+            ));
+        }
+        let total = level.total();
+        if r.start > r.end || r.end > total {
+            return Err(invalid(format!(
+                "range {}..{} is not inside the level's 0..{total} reference vectors",
+                r.start, r.end
+            )));
+        }
+        let count = r.end - r.start;
+        let per_vector =
+            (level.geometry.layout().stride() + std::mem::size_of::<[u32; 2]>()) as u64;
+        let need = count
+            .checked_mul(per_vector)
+            .and_then(|b| b.checked_add(SLACK as u64))
+            .unwrap_or(u64::MAX);
+        let max = self.shared.max_memory;
+        if need.saturating_add(level.bytes) > max {
+            return Err(exhausted(format!(
+                "range {}..{} needs {need} bytes of vectors which, with the level's {} bytes, exceeds --max-memory {max}; assign a smaller range",
+                r.start, r.end, level.bytes
+            )));
+        }
+        self.shared.clear_assignment(&r.job_id, &level);
+        let lv = level.clone();
+        let (start, end) = (r.start, r.end);
+        let t = Instant::now();
+        let space = self
+            .shared
+            .run(move || {
+                VectorSpace::build_from_positions(
+                    &lv.sample(),
+                    &lv.geometry,
+                    &lv.positions,
+                    start..end,
+                )
+            })
+            .await?
+            .map_err(engine_status)?;
+        let build_seconds = t.elapsed().as_secs_f64();
+        let vectors = space.len() as u64;
+        let bytes =
+            (space.bytes() + SLACK) as u64 + vectors * std::mem::size_of::<[u32; 2]>() as u64;
+        self.shared.install_assignment(
+            &r.job_id,
+            Arc::new(Assigned {
+                level,
+                epoch: r.epoch,
+                space,
+                bytes,
+            }),
+        )?;
+        tracing::info!(
+            job = r.job_id,
+            level = r.level,
+            start,
+            end,
+            epoch = r.epoch,
+            bytes,
+            build_seconds,
+            "range assigned"
+        );
+        Ok(Response::new(proto::AssignReply {
+            vectors,
+            bytes,
+            build_seconds,
+        }))
+    }
+
+    type SearchStream = ReceiverStream<Result<proto::SearchResult, Status>>;
+
+    async fn search(
+        &self,
+        request: Request<Streaming<proto::SearchBatch>>,
+    ) -> Result<Response<Self::SearchStream>, Status> {
+        let mut inbound = request.into_inner();
+        let (tx, rx) = tokio::sync::mpsc::channel(4);
+        let shared = self.shared.clone();
+        let mut stop = shared.stop.clone();
+        tokio::spawn(async move {
+            loop {
+                let next = tokio::select! {
+                    m = inbound.message() => Some(m),
+                    () = async { let _ = stop.wait_for(|s| *s).await; } => None,
+                    () = tx.closed() => break,
+                };
+                let Some(next) = next else {
+                    let _ = tx
+                        .send(Err(Status::unavailable("the worker is shutting down")))
+                        .await;
+                    break;
+                };
+                let reply = match next {
+                    Ok(Some(batch)) => search_batch(&shared, batch).await,
+                    Ok(None) => break,
+                    Err(status) => Err(super::size_status(status)),
+                };
+                let failed = reply.is_err();
+                if let Err(e) = &reply {
+                    tracing::debug!(code = ?e.code(), message = e.message(), "search batch rejected");
+                }
+                if tx.send(reply).await.is_err() || failed {
+                    break;
+                }
+            }
+        });
+        Ok(Response::new(ReceiverStream::new(rx)))
+    }
+
+    async fn end_job(
+        &self,
+        request: Request<proto::EndJobRequest>,
+    ) -> Result<Response<proto::EndJobReply>, Status> {
+        let r = request.into_inner();
+        check_job_id(&r.job_id)?;
+        let freed_bytes = self.shared.end_job(&r.job_id);
+        tracing::info!(job = r.job_id, freed_bytes, "job ended");
+        Ok(Response::new(proto::EndJobReply { freed_bytes }))
+    }
+}
+
+/// Validates one batch and searches it over the job's assigned range.
+async fn search_batch(
+    shared: &Arc<Shared>,
+    b: proto::SearchBatch,
+) -> Result<proto::SearchResult, Status> {
+    check_job_id(&b.job_id)?;
+    let k = match b.top_k as usize {
+        0 | 1 => 1,
+        k if k > MAX_TOP_K => {
+            return Err(invalid(format!("top_k {k} exceeds the limit {MAX_TOP_K}")));
+        }
+        k => k,
+    };
+    let count = b.count as usize;
+    if count == 0 || count > MAX_QUERIES {
+        return Err(invalid(format!(
+            "count {count} must be in 1..={MAX_QUERIES}"
+        )));
+    }
+    let a = shared.assigned(&b.job_id, b.level, b.epoch)?;
+    let layout = a.space.layout();
+    let dims = layout.dims();
+    let expected = count
+        .checked_mul(dims)
+        .ok_or_else(|| invalid("count × dims overflows"))?;
+    for (what, len) in [("values", b.values.len()), ("masks", b.masks.len())] {
+        if len != expected {
+            return Err(invalid(format!(
+                "{what} has {len} bytes, expected count {count} × {dims} components = {expected}"
+            )));
+        }
+    }
+    let per_query = if k == 1 { 1 } else { k.min(a.space.len()) };
+    let reply_bytes = count * per_query * HIT_WIRE_BYTES + 64;
+    if reply_bytes > shared.max_message {
+        return Err(exhausted(format!(
+            "the answer to {count} queries × {per_query} hits may need {reply_bytes} bytes, over the {} byte message limit; send smaller batches",
+            shared.max_message
+        )));
+    }
+    let engine = shared.engine;
+    let job_id = b.job_id;
+    let (hits, seconds) = shared
+        .run(move || -> crate::Result<(Vec<Hit>, f64)> {
+            let t = Instant::now();
+            let mut q = QueryBatch::new(layout);
+            for (v, m) in b.values.chunks_exact(dims).zip(b.masks.chunks_exact(dims)) {
+                q.push(v, m)?;
+            }
+            let space = &a.space;
+            let params = &a.level.params;
+            let range = space.start()..space.end();
+            let hits = if space.is_empty() {
+                if k == 1 {
+                    vec![Hit::NONE; count]
+                } else {
+                    Vec::new()
+                }
+            } else if k == 1 {
+                engine.search_best(space, range, &q, params)?
+            } else {
+                let lists = engine.search_topk(space, range, &q, params, k)?;
+                if lists.iter().any(|l| l.len() != per_query) {
+                    return Err(crate::EngineError::Parameter(
+                        "top-k lists of unequal length".into(),
+                    ));
+                }
+                lists.into_iter().flatten().collect()
+            };
+            Ok((hits, t.elapsed().as_secs_f64()))
+        })
+        .await?
+        .map_err(engine_status)?;
+    shared.touch(&job_id);
+    Ok(proto::SearchResult {
+        batch_id: b.batch_id,
+        hits: hits
+            .into_iter()
+            .map(|h| proto::Hit {
+                index: h.index,
+                distance: h.dist,
+            })
+            .collect(),
+        per_query: per_query as u32,
+        seconds,
+    })
+}

@@ -1,0 +1,799 @@
+//! The gRPC worker in-process on 127.0.0.1:0, driven by the generated client:
+//! cluster answers equal the local engine, and every bad call gets the right
+//! status without taking the worker down.
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use texsyn_proto::v1 as pb;
+use texsyn_proto::PROTOCOL_VERSION;
+use texsyn_worker::service::{self, best_hits, topk_hits, BearerAuth, WorkerConfig};
+use texsyn_worker::{
+    merge_best, merge_topk, Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample,
+    VectorSpace, Weights,
+};
+use tokio::net::TcpListener;
+use tokio::sync::oneshot;
+use tonic::codegen::InterceptedService;
+use tonic::transport::Channel;
+use tonic::{Code, Status};
+
+type Client = pb::worker_client::WorkerClient<InterceptedService<Channel, BearerAuth>>;
+
+struct Worker {
+    addr: SocketAddr,
+    stop: oneshot::Sender<()>,
+    handle: tokio::task::JoinHandle<anyhow::Result<()>>,
+}
+
+impl Worker {
+    async fn start(config: WorkerConfig) -> Self {
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let (stop, rx) = oneshot::channel::<()>();
+        let handle = tokio::spawn(service::serve(config, listener, async {
+            let _ = rx.await;
+        }));
+        Self { addr, stop, handle }
+    }
+
+    async fn shutdown(self) {
+        let _ = self.stop.send(());
+        tokio::time::timeout(Duration::from_secs(10), self.handle)
+            .await
+            .expect("worker stops within the grace period")
+            .unwrap()
+            .unwrap();
+    }
+}
+
+fn config() -> WorkerConfig {
+    WorkerConfig {
+        threads: 1,
+        max_memory: 256 << 20,
+        ..WorkerConfig::default()
+    }
+}
+
+async fn channel(addr: SocketAddr) -> Channel {
+    Channel::from_shared(format!("http://{addr}"))
+        .unwrap()
+        .connect_timeout(Duration::from_secs(5))
+        .timeout(Duration::from_secs(30))
+        .connect()
+        .await
+        .unwrap()
+}
+
+async fn connect(addr: SocketAddr, token: Option<&str>) -> Client {
+    pb::worker_client::WorkerClient::with_interceptor(
+        channel(addr).await,
+        BearerAuth::new(token).unwrap(),
+    )
+}
+
+/// A small random level: a 40×40 sample with a few undefined pixels, its 20×20
+/// parent, Geometry 5/3. Pixel values come from 4 levels so that ties are common.
+struct Level {
+    sample: Vec<u8>,
+    defined: Vec<u8>,
+    parent: Vec<u8>,
+    geometry: Geometry,
+    params: Params,
+}
+
+impl Level {
+    fn new(seed: u64, side: usize) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let sample = (0..side * side)
+            .map(|_| rng.random_range(0..4u8) * 60)
+            .collect();
+        let defined = (0..side * side)
+            .map(|_| u8::from(rng.random_range(0..50) != 0))
+            .collect();
+        let ps = side / 2;
+        let parent = (0..ps * ps)
+            .map(|_| rng.random_range(0..4u8) * 60)
+            .collect();
+        Self {
+            sample,
+            defined,
+            parent,
+            geometry: Geometry::new(5, 3).unwrap(),
+            params: Params {
+                metric: Metric::L1,
+                weights: Weights::new(2, 1).unwrap(),
+            },
+        }
+    }
+
+    fn side(&self) -> usize {
+        (self.sample.len() as f64).sqrt() as usize
+    }
+
+    fn planes(&self) -> Sample<'_> {
+        let s = self.side();
+        Sample {
+            fine: Plane::new(s, s, &self.sample, Some(&self.defined)).unwrap(),
+            parent: Some(Plane::new(s / 2, s / 2, &self.parent, None).unwrap()),
+        }
+    }
+
+    fn load(&self, job: &str, level: u32) -> pb::LoadLevelRequest {
+        let p = self.planes();
+        pb::LoadLevelRequest {
+            job_id: job.into(),
+            level,
+            geometry: Some(service::geometry_to_proto(&self.geometry, &self.params)),
+            sample: Some(service::plane_to_proto(&p.fine)),
+            parent: p.parent.as_ref().map(service::plane_to_proto),
+        }
+    }
+
+    fn dims(&self) -> usize {
+        self.geometry.layout().dims()
+    }
+
+    /// Random queries with random masks; query 0 is fully masked out (every
+    /// distance 0, so the lowest index must win everywhere).
+    fn queries(&self, seed: u64, count: usize) -> (Vec<u8>, Vec<u8>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let d = self.dims();
+        let values = (0..count * d)
+            .map(|_| rng.random_range(0..4u8) * 60)
+            .collect();
+        let masks = (0..count * d)
+            .map(|i| u8::from(i >= d && rng.random_range(0..3) != 0))
+            .collect();
+        (values, masks)
+    }
+}
+
+fn batch(
+    job: &str,
+    level: u32,
+    id: u64,
+    top_k: u32,
+    count: usize,
+    q: &(Vec<u8>, Vec<u8>),
+) -> pb::SearchBatch {
+    pb::SearchBatch {
+        job_id: job.into(),
+        level,
+        batch_id: id,
+        top_k,
+        count: count as u32,
+        values: q.0.clone(),
+        masks: q.1.clone(),
+        epoch: 0,
+    }
+}
+
+fn assign(job: &str, level: u32, start: u64, end: u64) -> pb::AssignRequest {
+    pb::AssignRequest {
+        job_id: job.into(),
+        level,
+        start,
+        end,
+        lbg_probes: 0,
+        epoch: 0,
+    }
+}
+
+/// Sends the batches on one stream and collects the answers in order.
+async fn search(
+    client: &mut Client,
+    batches: Vec<pb::SearchBatch>,
+) -> Result<Vec<pb::SearchResult>, Status> {
+    let n = batches.len();
+    let mut stream = client
+        .search(tokio_stream::iter(batches))
+        .await?
+        .into_inner();
+    let mut out = Vec::new();
+    while let Some(r) = stream.message().await? {
+        out.push(r);
+    }
+    assert_eq!(out.len(), n, "one answer per batch");
+    Ok(out)
+}
+
+fn code<T: std::fmt::Debug>(r: Result<T, Status>) -> Code {
+    r.expect_err("the call must fail").code()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cluster_of_one_two_three_workers_equals_local_engine() {
+    let level = Level::new(7, 40);
+    let count = 24;
+    let q = level.queries(11, count);
+    let k = 5;
+
+    // The local answer over the whole range.
+    let sample = level.planes();
+    let positions = texsyn_worker::layout::reference_positions(&sample, &level.geometry).unwrap();
+    let total = positions.len() as u64;
+    assert!(total > 500, "the level has {total} reference vectors");
+    let space = VectorSpace::build(&sample, &level.geometry, 0..total).unwrap();
+    let mut qb = QueryBatch::new(level.geometry.layout());
+    let d = level.dims();
+    for (v, m) in q.0.chunks(d).zip(q.1.chunks(d)) {
+        qb.push(v, m).unwrap();
+    }
+    let engine = Engine::default().with_min_chunk(64);
+    let local = engine
+        .search_best(&space, 0..total, &qb, &level.params)
+        .unwrap();
+    let local_topk = engine
+        .search_topk(&space, 0..total, &qb, &level.params, k)
+        .unwrap();
+    assert_eq!(local[0].index, 0, "a fully masked query ties everywhere");
+
+    for n in 1..=3u64 {
+        let mut workers = Vec::new();
+        let mut clients = Vec::new();
+        for _ in 0..n {
+            let w = Worker::start(config()).await;
+            clients.push(connect(w.addr, None).await);
+            workers.push(w);
+        }
+        let mut best = vec![Hit::NONE; count];
+        let mut topk = vec![Vec::new(); count];
+        for (i, c) in clients.iter_mut().enumerate() {
+            let i = i as u64;
+            // Uneven parts: the first worker gets less.
+            let cut = |j: u64| {
+                if j == 0 {
+                    0
+                } else {
+                    (total * (2 * j - 1)) / (2 * n - 1)
+                }
+            };
+            let (start, end) = (cut(i), if i + 1 == n { total } else { cut(i + 1) });
+            let loaded = c
+                .load_level(level.load("job", 3))
+                .await
+                .unwrap()
+                .into_inner();
+            assert_eq!(loaded.total_vectors, total);
+            let a = c.assign(assign("job", 3, start, end)).await.unwrap();
+            assert_eq!(a.into_inner().vectors, end - start);
+            let answers = search(
+                c,
+                vec![
+                    batch("job", 3, 10, 1, count, &q),
+                    batch("job", 3, 11, k as u32, count, &q),
+                ],
+            )
+            .await
+            .unwrap();
+            assert_eq!((answers[0].batch_id, answers[1].batch_id), (10, 11));
+            let part = best_hits(&answers[0], count).unwrap();
+            assert!(part.iter().all(|h| (start..end).contains(&h.index)));
+            merge_best(&mut best, &part);
+            for (acc, l) in topk.iter_mut().zip(topk_hits(&answers[1], count).unwrap()) {
+                *acc = merge_topk(acc, &l, k);
+            }
+        }
+        assert_eq!(best, local, "{n} worker(s)");
+        assert_eq!(topk, local_topk, "{n} worker(s), top-{k}");
+        for (c, w) in clients.iter_mut().zip(workers) {
+            let freed = c
+                .end_job(pb::EndJobRequest {
+                    job_id: "job".into(),
+                })
+                .await
+                .unwrap()
+                .into_inner()
+                .freed_bytes;
+            assert!(freed > 0);
+            w.shutdown().await;
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn empty_range_answers_none_hits() {
+    let level = Level::new(3, 24);
+    let w = Worker::start(config()).await;
+    let mut c = connect(w.addr, None).await;
+    c.load_level(level.load("j", 0)).await.unwrap();
+    c.assign(assign("j", 0, 5, 5)).await.unwrap();
+    let q = level.queries(1, 3);
+    let r = search(
+        &mut c,
+        vec![batch("j", 0, 1, 1, 3, &q), batch("j", 0, 2, 4, 3, &q)],
+    )
+    .await
+    .unwrap();
+    assert_eq!(best_hits(&r[0], 3).unwrap(), vec![Hit::NONE; 3]);
+    assert_eq!(r[1].per_query, 0);
+    assert_eq!(topk_hits(&r[1], 3).unwrap(), vec![Vec::new(); 3]);
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn wrong_or_missing_token_is_unauthenticated_and_worker_keeps_serving() {
+    let dir = tempfile::tempdir().unwrap();
+    let token_file = dir.path().join("token");
+    std::fs::write(&token_file, "  s3cret-token\n").unwrap();
+    let token = WorkerConfig::read_token_file(&token_file).unwrap();
+    assert_eq!(token, "s3cret-token");
+    let w = Worker::start(WorkerConfig {
+        token: Some(token),
+        ..config()
+    })
+    .await;
+    let info = || pb::InfoRequest {
+        protocol_version: PROTOCOL_VERSION,
+    };
+    for t in [None, Some("wrong"), Some("s3cret-token2"), Some("")] {
+        let mut c = connect(w.addr, t).await;
+        assert_eq!(code(c.info(info()).await), Code::Unauthenticated, "{t:?}");
+        let level = Level::new(1, 24);
+        assert_eq!(
+            code(c.load_level(level.load("j", 0)).await),
+            Code::Unauthenticated
+        );
+        assert_eq!(
+            code(search(&mut c, vec![batch("j", 0, 0, 1, 1, &level.queries(0, 1))]).await),
+            Code::Unauthenticated
+        );
+        let mut health = tonic_health::pb::health_client::HealthClient::new(channel(w.addr).await);
+        let check = tonic_health::pb::HealthCheckRequest {
+            service: String::new(),
+        };
+        assert_eq!(code(health.check(check).await), Code::Unauthenticated);
+    }
+    let mut c = connect(w.addr, Some("s3cret-token")).await;
+    let reply = c.info(info()).await.unwrap().into_inner();
+    assert_eq!(reply.protocol_version, PROTOCOL_VERSION);
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn oversized_message_is_resource_exhausted() {
+    let w = Worker::start(WorkerConfig {
+        max_message: 64 << 10,
+        ..config()
+    })
+    .await;
+    let mut c = connect(w.addr, None).await;
+    let big = Level::new(2, 300);
+    assert_eq!(
+        code(c.load_level(big.load("j", 0)).await),
+        Code::ResourceExhausted
+    );
+    let small = Level::new(2, 40);
+    c.load_level(small.load("j", 0)).await.unwrap();
+    c.assign(assign("j", 0, 0, 100)).await.unwrap();
+    let n = 3000; // 3000 × 34 × 2 bytes > 64 KiB
+    let q = small.queries(1, n);
+    assert_eq!(
+        code(search(&mut c, vec![batch("j", 0, 0, 1, n, &q)]).await),
+        Code::ResourceExhausted
+    );
+    // The worker still answers a correct call.
+    let q = small.queries(1, 10);
+    search(&mut c, vec![batch("j", 0, 0, 1, 10, &q)])
+        .await
+        .unwrap();
+    let info = c
+        .info(pb::InfoRequest {
+            protocol_version: PROTOCOL_VERSION,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(info.max_message_bytes, 64 << 10);
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_requests_get_a_status_not_a_crash() {
+    let w = Worker::start(config()).await;
+    let mut c = connect(w.addr, None).await;
+    let level = Level::new(5, 40);
+    let good = || level.load("job", 2);
+
+    // LoadLevel.
+    let mut r = good();
+    r.geometry.as_mut().unwrap().neighbourhood = 4;
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    let mut r = good();
+    r.geometry.as_mut().unwrap().parent_window = 2;
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    let mut r = good();
+    r.geometry = None;
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    let mut r = good();
+    r.geometry.as_mut().unwrap().metric = 9;
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    let mut r = good();
+    let g = r.geometry.as_mut().unwrap();
+    (g.weight_hi, g.weight_lo) = (0, 0);
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    let mut r = good();
+    r.sample.as_mut().unwrap().pixels.pop();
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    let mut r = good();
+    r.sample.as_mut().unwrap().defined.truncate(7);
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    let mut r = good();
+    let s = r.sample.as_mut().unwrap();
+    (s.width, s.height) = (u32::MAX, u32::MAX);
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    let mut r = good();
+    r.parent = None;
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    let mut r = good();
+    r.sample = None;
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    let mut r = good();
+    r.job_id = String::new();
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    let mut r = good();
+    r.job_id = "x".repeat(129);
+    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+
+    // Nothing loaded yet.
+    assert_eq!(
+        code(c.assign(assign("job", 2, 0, 10)).await),
+        Code::FailedPrecondition
+    );
+    let q = level.queries(3, 4);
+    assert_eq!(
+        code(search(&mut c, vec![batch("job", 2, 0, 1, 4, &q)]).await),
+        Code::FailedPrecondition
+    );
+
+    let total = c
+        .load_level(good())
+        .await
+        .unwrap()
+        .into_inner()
+        .total_vectors;
+    // Assign.
+    for (s, e) in [(0, total + 1), (10, 5), (total + 1, total + 2)] {
+        assert_eq!(
+            code(c.assign(assign("job", 2, s, e)).await),
+            Code::InvalidArgument,
+            "{s}..{e}"
+        );
+    }
+    assert_eq!(
+        code(c.assign(assign("other", 2, 0, 10)).await),
+        Code::FailedPrecondition
+    );
+    assert_eq!(
+        code(c.assign(assign("job", 1, 0, 10)).await),
+        Code::FailedPrecondition
+    );
+    let mut lbg = assign("job", 2, 0, 10);
+    lbg.lbg_probes = 2;
+    assert_eq!(code(c.assign(lbg).await), Code::Unimplemented);
+
+    // Loaded but not assigned.
+    assert_eq!(
+        code(search(&mut c, vec![batch("job", 2, 0, 1, 4, &q)]).await),
+        Code::FailedPrecondition
+    );
+    c.assign(assign("job", 2, 0, total)).await.unwrap();
+
+    // Search.
+    let bad_batches = [
+        (batch("job", 2, 0, 1, 5, &q), Code::InvalidArgument), // count × dims ≠ len
+        (
+            pb::SearchBatch {
+                masks: vec![1; 3],
+                ..batch("job", 2, 0, 1, 4, &q)
+            },
+            Code::InvalidArgument,
+        ),
+        (
+            batch("job", 2, 0, 1, 0, &(vec![], vec![])),
+            Code::InvalidArgument,
+        ),
+        (batch("job", 2, 0, 100_000, 4, &q), Code::InvalidArgument),
+        (batch("", 2, 0, 1, 4, &q), Code::InvalidArgument),
+        (batch("nope", 2, 0, 1, 4, &q), Code::FailedPrecondition),
+        (batch("job", 7, 0, 1, 4, &q), Code::FailedPrecondition),
+        (
+            pb::SearchBatch {
+                epoch: 9,
+                ..batch("job", 2, 0, 1, 4, &q)
+            },
+            Code::FailedPrecondition,
+        ),
+    ];
+    for (b, want) in bad_batches {
+        let desc = format!("{} {} {} {}", b.job_id, b.level, b.count, b.epoch);
+        assert_eq!(code(search(&mut c, vec![b]).await), want, "{desc}");
+    }
+    // A bad batch ends its stream; the answers before it still arrive.
+    let mut stream = c
+        .search(tokio_stream::iter(vec![
+            batch("job", 2, 1, 1, 4, &q),
+            batch("job", 2, 2, 1, 5, &q),
+        ]))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(stream.message().await.unwrap().unwrap().batch_id, 1);
+    assert_eq!(
+        stream.message().await.unwrap_err().code(),
+        Code::InvalidArgument
+    );
+
+    // A new level replaces the old one: searches of the old level are refused.
+    c.load_level(level.load("job", 1)).await.unwrap();
+    assert_eq!(
+        code(search(&mut c, vec![batch("job", 2, 0, 1, 4, &q)]).await),
+        Code::FailedPrecondition
+    );
+    assert_eq!(
+        code(search(&mut c, vec![batch("job", 1, 0, 1, 4, &q)]).await),
+        Code::FailedPrecondition,
+        "level 1 is loaded but not assigned"
+    );
+    // Still serving, and ending a job twice is harmless.
+    let end = || pb::EndJobRequest {
+        job_id: "job".into(),
+    };
+    assert!(c.end_job(end()).await.unwrap().into_inner().freed_bytes > 0);
+    assert_eq!(c.end_job(end()).await.unwrap().into_inner().freed_bytes, 0);
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn memory_limit_is_resource_exhausted() {
+    let w = Worker::start(WorkerConfig {
+        max_memory: 1 << 20,
+        ..config()
+    })
+    .await;
+    let mut c = connect(w.addr, None).await;
+    let level = Level::new(9, 200);
+    let total = c
+        .load_level(level.load("j", 0))
+        .await
+        .unwrap()
+        .into_inner()
+        .total_vectors;
+    assert_eq!(
+        code(c.assign(assign("j", 0, 0, total)).await),
+        Code::ResourceExhausted
+    );
+    let r = c
+        .assign(assign("j", 0, 0, 1000))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(r.vectors, 1000);
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn protocol_version_mismatch_is_failed_precondition() {
+    let w = Worker::start(config()).await;
+    let mut c = connect(w.addr, None).await;
+    let s = c
+        .info(pb::InfoRequest {
+            protocol_version: PROTOCOL_VERSION + 1,
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(s.code(), Code::FailedPrecondition);
+    assert!(s.message().contains(&(PROTOCOL_VERSION + 1).to_string()));
+    assert!(s.message().contains(&PROTOCOL_VERSION.to_string()));
+    let info = c
+        .info(pb::InfoRequest {
+            protocol_version: PROTOCOL_VERSION,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(info.threads, 1);
+    assert!(info.cores >= 1);
+    assert!(!info.kernel.is_empty());
+    assert_eq!(info.memory_limit, 256 << 20);
+    assert_eq!(info.version, env!("CARGO_PKG_VERSION"));
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn calibration_reports_throughput_and_caps_sizes() {
+    let w = Worker::start(config()).await;
+    let mut c = connect(w.addr, None).await;
+    let r = c
+        .calibrate(pb::CalibrateRequest {
+            seed: 42,
+            vectors: 4096,
+            dims: 50,
+            queries: 8,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(r.pairs_per_second > 0.0 && r.seconds > 0.0);
+    let info = c
+        .info(pb::InfoRequest {
+            protocol_version: PROTOCOL_VERSION,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(info.calibrated_vectors_per_second, r.pairs_per_second);
+    for bad in [
+        pb::CalibrateRequest {
+            seed: 1,
+            vectors: u32::MAX,
+            dims: 50,
+            queries: 8,
+        },
+        pb::CalibrateRequest {
+            seed: 1,
+            vectors: 10,
+            dims: 100_000,
+            queries: 8,
+        },
+        pb::CalibrateRequest {
+            seed: 1,
+            vectors: 10,
+            dims: 50,
+            queries: 100_000,
+        },
+    ] {
+        assert_eq!(code(c.calibrate(bad).await), Code::InvalidArgument);
+    }
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn health_check_reports_serving() {
+    let w = Worker::start(config()).await;
+    let mut health = tonic_health::pb::health_client::HealthClient::new(channel(w.addr).await);
+    for name in ["", "texsyn.v1.Worker"] {
+        let r = health
+            .check(tonic_health::pb::HealthCheckRequest {
+                service: name.into(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(
+            r.status,
+            tonic_health::pb::health_check_response::ServingStatus::Serving as i32,
+            "{name:?}"
+        );
+    }
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_timeout_frees_the_job() {
+    let w = Worker::start(WorkerConfig {
+        idle_timeout: Some(Duration::from_millis(200)),
+        ..config()
+    })
+    .await;
+    let mut c = connect(w.addr, None).await;
+    let level = Level::new(4, 40);
+    c.load_level(level.load("j", 0)).await.unwrap();
+    c.assign(assign("j", 0, 0, 100)).await.unwrap();
+    let info = || pb::InfoRequest {
+        protocol_version: PROTOCOL_VERSION,
+    };
+    let i = c.info(info()).await.unwrap().into_inner();
+    assert!(i.memory_in_use > 0);
+    assert_eq!(i.jobs, 1);
+    tokio::time::sleep(Duration::from_millis(600)).await;
+    let i = c.info(info()).await.unwrap().into_inner();
+    assert_eq!((i.memory_in_use, i.jobs), (0, 0));
+    assert_eq!(
+        code(c.assign(assign("j", 0, 0, 100)).await),
+        Code::FailedPrecondition
+    );
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_ends_open_search_streams() {
+    let w = Worker::start(config()).await;
+    let mut c = connect(w.addr, None).await;
+    let level = Level::new(4, 40);
+    c.load_level(level.load("j", 0)).await.unwrap();
+    c.assign(assign("j", 0, 0, 100)).await.unwrap();
+    let (tx, rx) = tokio::sync::mpsc::channel(1);
+    let mut stream = c
+        .search(tokio_stream::wrappers::ReceiverStream::new(rx))
+        .await
+        .unwrap()
+        .into_inner();
+    tx.send(batch("j", 0, 1, 1, 2, &level.queries(1, 2)))
+        .await
+        .unwrap();
+    assert_eq!(stream.message().await.unwrap().unwrap().batch_id, 1);
+    // The stream stays open (tx alive) while the worker shuts down.
+    let t = std::time::Instant::now();
+    w.shutdown().await;
+    assert!(t.elapsed() < Duration::from_secs(4));
+    assert!(stream.message().await.is_err());
+    drop(tx);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tls_with_token_serves() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cert, key) = (dir.path().join("cert.pem"), dir.path().join("key.pem"));
+    let made = std::process::Command::new("openssl")
+        .args(["req", "-x509", "-newkey", "ec", "-pkeyopt"])
+        .args(["ec_paramgen_curve:prime256v1", "-nodes", "-days", "1"])
+        .args([
+            "-subj",
+            "/CN=localhost",
+            "-addext",
+            "subjectAltName=DNS:localhost",
+        ])
+        .args(["-addext", "basicConstraints=critical,CA:FALSE", "-keyout"])
+        .arg(&key)
+        .arg("-out")
+        .arg(&cert)
+        .output();
+    if !made.as_ref().is_ok_and(|o| o.status.success()) {
+        eprintln!("skipped: openssl could not make a test certificate");
+        return;
+    }
+    let tls = service::TlsIdentity::from_files(&cert, &key).unwrap();
+    let w = Worker::start(WorkerConfig {
+        tls: Some(tls),
+        token: Some("t0ken".into()),
+        ..config()
+    })
+    .await;
+    let pem = std::fs::read(&cert).unwrap();
+    let ch = Channel::from_shared(format!("https://{}", w.addr))
+        .unwrap()
+        .tls_config(
+            tonic::transport::ClientTlsConfig::new()
+                .ca_certificate(tonic::transport::Certificate::from_pem(pem))
+                .domain_name("localhost"),
+        )
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    let mut c = pb::worker_client::WorkerClient::with_interceptor(
+        ch,
+        BearerAuth::new(Some("t0ken")).unwrap(),
+    );
+    let info = c
+        .info(pb::InfoRequest {
+            protocol_version: PROTOCOL_VERSION,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(info.protocol_version, PROTOCOL_VERSION);
+    // Plain text to a TLS worker fails.
+    let plain = Channel::from_shared(format!("http://{}", w.addr))
+        .unwrap()
+        .timeout(Duration::from_secs(5))
+        .connect()
+        .await;
+    if let Ok(ch) = plain {
+        let mut c = pb::worker_client::WorkerClient::with_interceptor(
+            ch,
+            BearerAuth::new(Some("t0ken")).unwrap(),
+        );
+        assert!(c
+            .info(pb::InfoRequest {
+                protocol_version: PROTOCOL_VERSION,
+            })
+            .await
+            .is_err());
+    }
+    w.shutdown().await;
+}
