@@ -10,7 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use texsyn_worker::{Engine, Metric, Weights};
 
 use crate::imaging::{self, ColorImage};
-use crate::search::LocalSearch;
+use crate::search::{LocalSearch, Plan, PlannedSearch};
 use crate::synth::{self, Config, Mode, Position, Progress, SynthMethod};
 
 const EXAMPLES: &str = "Examples:
@@ -99,6 +99,9 @@ pub struct Common {
     /// Search kernel: auto, scalar, avx2, avx512.
     #[arg(long, default_value = "auto")]
     pub kernel: String,
+    /// Search plan per pyramid level, coarsest first: e.g. local,local,lbg or cluster,cluster,cluster; or auto.
+    #[arg(long, default_value = "auto")]
+    pub search: String,
     /// No progress bars.
     #[arg(long, short)]
     pub quiet: bool,
@@ -356,7 +359,9 @@ fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) 
         bar: std::sync::Mutex::new(None),
         quiet: common.quiet,
     };
-    let mut backend = LocalSearch::new(engine);
+    let plan: Plan = common.search.parse()?;
+    let mut backend = PlannedSearch::new(plan, LocalSearch::new(engine));
+    backend.check_levels(synth::resolve_levels(sample.width, sample.height, &cfg))?;
     let t = Instant::now();
     let out = pool.install(|| synth::synthesize(sample, &mode, &cfg, &mut backend, &bars))?;
     tracing::info!(seconds = t.elapsed().as_secs_f64(), search = %out.report.search, "synthesis done");

@@ -195,6 +195,8 @@ pub struct Report {
     pub search: String,
     pub per_level: Vec<LevelReport>,
     pub synthesis_seconds: f64,
+    /// What the search backend reports (plan used, workers, LBG codebooks).
+    pub search_stats: serde_json::Value,
 }
 
 /// Everything a run produces.
@@ -241,6 +243,15 @@ fn level_size(w: usize, h: usize, level: usize) -> (usize, usize) {
         (w, h) = pyramid::coarse_size(w, h);
     }
     (w, h)
+}
+
+/// The number of levels a run with `cfg` uses on a `sample_w`×`sample_h` sample.
+pub fn resolve_levels(sample_w: usize, sample_h: usize, cfg: &Config) -> usize {
+    if cfg.levels == 0 {
+        automatic_levels((sample_w, sample_h), cfg.neighbourhood)
+    } else {
+        cfg.levels
+    }
 }
 
 fn automatic_levels(sample: (usize, usize), n: usize) -> usize {
@@ -321,11 +332,7 @@ pub fn synthesize(
         MAX_CANVAS_PIXELS,
         imaging::MAX_SIDE
     );
-    let levels = if cfg.levels == 0 {
-        automatic_levels((sw, sh), n)
-    } else {
-        cfg.levels
-    };
+    let levels = resolve_levels(sw, sh, cfg);
     {
         let (lw, lh) = level_size(sw, sh, levels - 1);
         ensure!(
@@ -546,6 +553,18 @@ pub fn synthesize(
             params,
             sample: sample_planes,
             positions: &positions,
+            levels,
+            expected_queries: canvas
+                .defined
+                .iter()
+                .filter(|&&d| !d)
+                .count()
+                .div_ceil(cfg.block * cfg.block)
+                .max(if scanline {
+                    lw.div_ceil(cfg.block) * lh.div_ceil(cfg.block)
+                } else {
+                    0
+                }) as u64,
         })?;
         let build_seconds = build_started.elapsed().as_secs_f64();
 
@@ -619,6 +638,7 @@ pub fn synthesize(
         search: backend.name(),
         per_level,
         synthesis_seconds: started.elapsed().as_secs_f64(),
+        search_stats: backend.stats(),
     };
     Ok(Output {
         image,
