@@ -361,7 +361,10 @@ fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) 
     };
     let plan: Plan = common.search.parse()?;
     let mut backend = PlannedSearch::new(plan, LocalSearch::new(engine));
-    backend.check_levels(synth::resolve_levels(sample.width, sample.height, &cfg))?;
+    if !matches!(mode, Mode::Fill { .. }) || cfg.levels != 0 {
+        // (Automatic levels of `fill` depend on the holes; checked per level then.)
+        backend.check_levels(synth::resolve_levels(sample.width, sample.height, &cfg))?;
+    }
     let t = Instant::now();
     let out = pool.install(|| synth::synthesize(sample, &mode, &cfg, &mut backend, &bars))?;
     tracing::info!(seconds = t.elapsed().as_secs_f64(), search = %out.report.search, "synthesis done");

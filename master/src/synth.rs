@@ -332,7 +332,7 @@ pub fn synthesize(
         MAX_CANVAS_PIXELS,
         imaging::MAX_SIDE
     );
-    let levels = resolve_levels(sw, sh, cfg);
+    let mut levels = resolve_levels(sw, sh, cfg);
     {
         let (lw, lh) = level_size(sw, sh, levels - 1);
         ensure!(
@@ -360,13 +360,21 @@ pub fn synthesize(
     }
 
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
-    let align = 1usize << (levels - 1);
     let main_lum = imaging::luminance(sample);
     let holes_defined: Option<Vec<bool>> = match mode {
         Mode::Fill { holes } => Some(holes.iter().map(|&h| !h).collect()),
         _ => None,
     };
-    let sample_pyr = pyramid::pyramid(&main_lum, holes_defined.as_deref(), levels + 1, false);
+    let mut sample_pyr = pyramid::pyramid(&main_lum, holes_defined.as_deref(), levels + 1, false);
+    if cfg.levels == 0 && holes_defined.is_some() {
+        // Holes grow on coarse levels: drop levels until the coarsest still has
+        // enough fully known neighbourhoods to copy from.
+        while levels > 1 && coarsest_references(&sample_pyr, levels - 1, n)? < 16 {
+            levels -= 1;
+        }
+        sample_pyr.truncate(levels + 1);
+    }
+    let align = 1usize << (levels - 1);
 
     // The known part of the finest canvas.
     let placement = match mode {
@@ -648,6 +656,18 @@ pub fn synthesize(
         levels: levels_out,
         report,
     })
+}
+
+/// Reference neighbourhoods of level `l` when it is the coarsest (no parent part).
+fn coarsest_references(pyr: &[(Gray, Option<Vec<bool>>)], l: usize, n: usize) -> Result<usize> {
+    let (g, d) = &pyr[l];
+    let bytes: Option<Vec<u8>> = d.as_ref().map(|d| d.iter().map(|&b| u8::from(b)).collect());
+    let plane = Plane::new(g.width, g.height, &g.data, bytes.as_deref())?;
+    let sample = Sample {
+        fine: plane,
+        parent: None,
+    };
+    Ok(reference_positions(&sample, &Geometry::new(n, 0)?)?.len())
 }
 
 fn automatic_levels_max(sw: usize, sh: usize, n: usize) -> usize {

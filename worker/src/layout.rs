@@ -575,6 +575,40 @@ impl QueryBatch {
         &self.masks[q * s..(q + 1) * s]
     }
 
+    /// The queries `qs` of this batch, in that order (used by LBG to search
+    /// per-query partitions).
+    pub(crate) fn select(&self, qs: impl IntoIterator<Item = usize>) -> QueryBatch {
+        let s = self.layout.stride();
+        let mut out = QueryBatch::new(self.layout);
+        for q in qs {
+            out.values
+                .extend_from_slice(&self.values[q * s..(q + 1) * s]);
+            out.masks.extend_from_slice(&self.masks[q * s..(q + 1) * s]);
+            out.len += 1;
+        }
+        out
+    }
+
+    /// `count` padded vectors (`count × stride` bytes, padding zero) as queries
+    /// with every component defined (LBG scores vectors against seeds this way).
+    pub(crate) fn full_from_padded(layout: Layout, padded: &[u8], count: usize) -> QueryBatch {
+        let s = layout.stride();
+        let mut full = vec![0u8; s];
+        layout.scatter(&vec![0xFFu8; layout.dims()], &mut full);
+        let mut masks = Vec::with_capacity(count * s);
+        let mut values = Vec::with_capacity(count * s);
+        for v in padded[..count * s].chunks_exact(s) {
+            masks.extend_from_slice(&full);
+            values.extend(v.iter().zip(&full).map(|(&x, &m)| x & m));
+        }
+        QueryBatch {
+            layout,
+            len: count,
+            values,
+            masks,
+        }
+    }
+
     pub(crate) fn all_values(&self) -> &[u8] {
         &self.values
     }
