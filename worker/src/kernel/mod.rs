@@ -155,15 +155,7 @@ impl Kernel {
                     "AVX-512 kernel on a CPU without AVX-512BW/VL"
                 );
                 // SAFETY: the CPU supports AVX-512F/BW/VL and AVX2 (checked above).
-                // With fewer than 8 queries the pass is bound by memory bandwidth and
-                // the 4-wide AVX2 reduction is measurably cheaper than the 8-wide one.
-                unsafe {
-                    if scan.queries.len() < 8 {
-                        x86::scan_avx2(scan, sink)
-                    } else {
-                        x86::scan_avx512(scan, sink)
-                    }
-                }
+                unsafe { x86::scan_avx512(scan, sink) }
             }
             #[cfg(not(target_arch = "x86_64"))]
             _ => scalar::scan(scan, sink),

@@ -198,20 +198,9 @@ unsafe fn scan512<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
             sink.row(scan.base + i as u64, &row[..nq]);
         }
     } else {
-        // Runs: one query against groups of 8 vectors.
-        let mut buf = [0u64; 8];
-        let groups = scan.count / 8;
-        for g in 0..groups {
-            let v: [*const u8; 8] = std::array::from_fn(|j| vp.add((g * 8 + j) * s));
-            for qi in 0..nq {
-                let q = [scan.queries.values(qi).as_ptr(); 8];
-                let m = [scan.queries.mask(qi).as_ptr(); 8];
-                let d = weigh512(pairs8::<L2>(&plan, &v, &q, &m), wh, wl);
-                _mm512_storeu_si512(buf.as_mut_ptr().cast(), d);
-                sink.run(qi, scan.base + (g * 8) as u64, &buf);
-            }
-        }
-        tail(scan, groups * 8, sink);
+        // Few queries: the pass is bound by memory bandwidth, and the 4-wide
+        // reduction of the AVX2 path is measurably cheaper than the 8-wide one.
+        scan256::<L2, S>(scan, sink);
     }
 }
 

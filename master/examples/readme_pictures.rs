@@ -1,0 +1,110 @@
+//! Makes the before/after pictures of the README from the bundled textures:
+//! `cargo run --release --example readme_pictures` writes `docs/*.png`.
+
+use std::path::Path;
+
+use anyhow::Result;
+use texsyn::imaging::{self, ColorImage};
+use texsyn::search::{LocalSearch, Plan, PlannedSearch};
+use texsyn::synth::Silent;
+use texsyn::{synthesize, Config, Mode, Position, SynthMethod};
+use texsyn_worker::Engine;
+
+fn run(sample: &ColorImage, mode: Mode, cfg: Config) -> Result<ColorImage> {
+    let mut backend = PlannedSearch::new(Plan::Auto, LocalSearch::new(Engine::default()));
+    let out = synthesize(sample, &mode, &cfg, &mut backend, &Silent)?;
+    println!(
+        "  {} in {:.2} s",
+        out.report.mode, out.report.synthesis_seconds
+    );
+    Ok(out.image)
+}
+
+/// Pictures side by side on a white background, 8 px apart, top-aligned.
+fn side_by_side(images: &[&ColorImage]) -> ColorImage {
+    let gap = 8;
+    let w = images.iter().map(|i| i.width).sum::<usize>() + gap * (images.len() - 1);
+    let h = images.iter().map(|i| i.height).max().unwrap_or(0);
+    let mut out = ColorImage::from_vec(w, h, vec![255; w * h * 3]);
+    let mut x0 = 0;
+    for img in images {
+        for y in 0..img.height {
+            for x in 0..img.width {
+                out.set(x0 + x, y, img.get(x, y));
+            }
+        }
+        x0 += img.width + gap;
+    }
+    out
+}
+
+fn tiled(img: &ColorImage, nx: usize, ny: usize) -> ColorImage {
+    let (w, h) = (img.width * nx, img.height * ny);
+    let mut out = ColorImage::new(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            out.set(x, y, img.get(x % img.width, y % img.height));
+        }
+    }
+    out
+}
+
+fn main() -> Result<()> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let tex = root.join("assets/textures");
+    let docs = root.join("docs");
+    std::fs::create_dir_all(&docs)?;
+
+    println!("fill: coffee beans with a red scribble");
+    let photo = imaging::load_color(&tex.join("coffee_scribble_color_400.png"))?;
+    let holes = imaging::load_mask(
+        &tex.join("coffee_scribble_mask_400.png"),
+        photo.width,
+        photo.height,
+    )?;
+    let filled = run(&photo, Mode::Fill { holes }, Config::default())?;
+    imaging::save_color(&docs.join("fill.png"), &side_by_side(&[&photo, &filled]))?;
+
+    println!("extend --tileable: brick, shown tiled 2×2");
+    let brick = imaging::load_color(&tex.join("brick_color_96.png"))?;
+    let cfg = Config {
+        tileable: true,
+        block: 5,
+        neighbourhood: 11,
+        ..Config::default()
+    };
+    let extended = run(
+        &brick,
+        Mode::Extend {
+            width: 192,
+            height: 192,
+            position: Position::Center,
+        },
+        cfg,
+    )?;
+    imaging::save_color(
+        &docs.join("extend_tileable.png"),
+        &side_by_side(&[&brick, &tiled(&extended, 2, 2)]),
+    )?;
+
+    println!("synth: leaves and pink marble");
+    let mut row = Vec::new();
+    for name in ["leaves_green_color_161.png", "pink_marble_color_128.png"] {
+        let sample = imaging::load_color(&tex.join(name))?;
+        let out = run(
+            &sample,
+            Mode::Synth {
+                width: 320,
+                height: 320,
+                method: SynthMethod::Grow,
+            },
+            Config::default(),
+        )?;
+        row.push(sample);
+        row.push(out);
+    }
+    let refs: Vec<&ColorImage> = row.iter().collect();
+    imaging::save_color(&docs.join("synth.png"), &side_by_side(&refs))?;
+    println!("wrote {}", docs.display());
+    Ok(())
+}
