@@ -42,6 +42,25 @@ enum Command {
         after_help = "Example: texsyn-worker bench --vectors 240000 --dims 192 --queries 64"
     )]
     Bench(BenchArgs),
+    /// Ask a running worker's health service; exit 0 when it is SERVING (for
+    /// container and Kubernetes probes).
+    #[command(
+        after_help = "Example: texsyn-worker health --address 127.0.0.1:7878 --token-file /etc/texsyn/token"
+    )]
+    Health(HealthArgs),
+}
+
+#[derive(clap::Args)]
+struct HealthArgs {
+    /// Worker address host:port.
+    #[arg(long, default_value = DEFAULT_LISTEN)]
+    address: String,
+    /// File holding the shared token, if the worker requires one.
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    /// Seconds to wait for the answer.
+    #[arg(long, default_value_t = 3.0)]
+    timeout: f64,
 }
 
 #[derive(clap::Args, Debug)]
@@ -152,7 +171,51 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         None => serve(cli.serve),
         Some(Command::Serve(a)) => serve(a),
         Some(Command::Bench(a)) => bench(a),
+        Some(Command::Health(a)) => health(a),
     }
+}
+
+fn health(a: HealthArgs) -> anyhow::Result<()> {
+    use tonic_health::pb::health_check_response::ServingStatus;
+    use tonic_health::pb::{health_client::HealthClient, HealthCheckRequest};
+    let token = a
+        .token_file
+        .as_deref()
+        .map(WorkerConfig::read_token_file)
+        .transpose()?;
+    let auth = service::BearerAuth::new(token.as_deref())?;
+    let timeout = Duration::from_secs_f64(a.timeout.clamp(0.1, 600.0));
+    let address = if a.address.contains("://") {
+        a.address.clone()
+    } else {
+        format!("http://{}", a.address)
+    };
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    runtime.block_on(async {
+        let channel = tonic::transport::Endpoint::from_shared(address.clone())
+            .with_context(|| format!("'{}' is not a worker address (host:port)", a.address))?
+            .connect_timeout(timeout)
+            .timeout(timeout)
+            .connect()
+            .await
+            .with_context(|| format!("cannot reach the worker at {}", a.address))?;
+        let mut client = HealthClient::with_interceptor(channel, auth);
+        let reply = client
+            .check(HealthCheckRequest {
+                service: String::new(),
+            })
+            .await
+            .with_context(|| format!("health check of {} failed", a.address))?;
+        let status = reply.into_inner().status();
+        if status != ServingStatus::Serving {
+            bail!("worker {} is {:?}", a.address, status);
+        }
+        println!("{} SERVING", a.address);
+        Ok(())
+    })
 }
 
 fn serve(args: ServeArgs) -> anyhow::Result<()> {
