@@ -69,8 +69,6 @@ fn main() -> Result<()> {
     let brick = imaging::load_color(&tex.join("brick_color_96.png"))?;
     let cfg = Config {
         tileable: true,
-        block: 5,
-        neighbourhood: 11,
         ..Config::default()
     };
     let extended = run(

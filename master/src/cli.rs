@@ -10,6 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use texsyn_worker::{Engine, Metric, Weights};
 
 use crate::imaging::{self, ColorImage};
+use crate::lbg::LbgSearch;
 use crate::search::{LocalSearch, Plan, PlannedSearch};
 use crate::synth::{self, Config, Mode, Position, Progress, SynthMethod};
 
@@ -55,10 +56,10 @@ pub struct Common {
     #[arg(short, long)]
     pub output: PathBuf,
     /// Block size B (odd, 1..=11).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 5)]
     pub block: usize,
     /// Neighbourhood size N (odd, larger than the block).
-    #[arg(long, alias = "neighborhood", default_value_t = 9)]
+    #[arg(long, alias = "neighborhood", default_value_t = 11)]
     pub neighbourhood: usize,
     /// Parent window M on the coarser level (odd; default covers N).
     #[arg(long)]
@@ -102,9 +103,18 @@ pub struct Common {
     /// Search plan per pyramid level, coarsest first: e.g. local,local,lbg or cluster,cluster,cluster; or auto.
     #[arg(long, default_value = "auto")]
     pub search: String,
+    /// LBG: partitions searched per query (the P nearest seeds; 1..=seeds of the level).
+    #[arg(long, default_value_t = crate::lbg::DEFAULT_PROBES)]
+    pub lbg_probes: usize,
+    /// LBG: stop training when the relative change of the total seed displacement
+    /// falls below this (0 < T < 1).
+    #[arg(long, default_value_t = texsyn_worker::lbg::DEFAULT_THRESHOLD)]
+    pub lbg_threshold: f64,
     /// No progress bars.
     #[arg(long, short)]
     pub quiet: bool,
+    #[command(flatten)]
+    pub cluster: crate::cluster::ClusterArgs,
 }
 
 #[derive(ValueEnum, Debug, Clone, Copy)]
@@ -164,7 +174,9 @@ pub enum MethodArg {
 #[derive(Args, Debug)]
 pub struct BenchArgs {
     /// Which configuration: a = 192×192 from 64×64 (9×9, 3×3, 3 levels); b = 1000×1000
-    /// from 500×500 (11×11, 5×5); paper = both.
+    /// from 500×500 (11×11, 5×5); paper = both; lbg = LBG against exhaustive search
+    /// per level of (a) and (b) for P = 1, 2, 4, then (b) end to end with LBG on
+    /// the finest level.
     #[arg(default_value = "paper")]
     pub which: String,
     /// Directory with the texture photos (default ../shared/textures).
@@ -182,6 +194,21 @@ pub struct BenchArgs {
     /// Write the outputs into this directory.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// bench lbg: probes to measure (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "1,2,4")]
+    pub lbg_probes: Vec<usize>,
+    /// bench lbg: training threshold (relative change of the seed displacement).
+    #[arg(long, default_value_t = texsyn_worker::lbg::DEFAULT_THRESHOLD)]
+    pub lbg_threshold: f64,
+    /// bench lbg: training vectors per seed (0 = all vectors).
+    #[arg(long, default_value_t = texsyn_worker::lbg::DEFAULT_SAMPLE_PER_SEED)]
+    pub lbg_sample_per_seed: usize,
+    /// bench lbg: cap on training iterations.
+    #[arg(long, default_value_t = texsyn_worker::lbg::DEFAULT_MAX_ITERATIONS)]
+    pub lbg_max_iterations: usize,
+    /// bench lbg: also sweep training set size × iteration cap on the finest level of (b).
+    #[arg(long)]
+    pub lbg_grid: bool,
 }
 
 /// Parses `WxH`.
@@ -360,7 +387,27 @@ fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) 
         quiet: common.quiet,
     };
     let plan: Plan = common.search.parse()?;
-    let mut backend = PlannedSearch::new(plan, LocalSearch::new(engine));
+    let lbg = LbgSearch::new(engine, common.lbg_probes, common.lbg_threshold, cfg.seed)?;
+    // No level can have more LBG seeds than ⌈√(sample pixels)⌉: refuse impossible probes now.
+    let most_pixels = cfg
+        .level_samples
+        .iter()
+        .map(|(_, s)| s.width * s.height)
+        .fold(sample.width * sample.height, usize::max);
+    lbg.check_vectors(most_pixels)?;
+    // Local workers (if any) live until the end of this function, also on error;
+    // the backend is declared after them, so it is dropped (ending the job on
+    // the workers) before they are killed.
+    let cluster = common.cluster.setup()?;
+    let (cluster_options, _local_workers) = match cluster {
+        Some(c) => (Some(c.options), c.local),
+        None => (None, None),
+    };
+    let mut backend = PlannedSearch::new(plan, LocalSearch::new(engine)).with_lbg(Box::new(lbg));
+    if let Some(options) = cluster_options {
+        let cluster = crate::cluster::ClusterSearch::connect(options, engine)?;
+        backend = backend.with_cluster(Box::new(cluster));
+    }
     if !matches!(mode, Mode::Fill { .. }) || cfg.levels != 0 {
         // (Automatic levels of `fill` depend on the holes; checked per level then.)
         backend.check_levels(synth::resolve_levels(sample.width, sample.height, &cfg))?;

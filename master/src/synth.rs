@@ -86,8 +86,8 @@ pub struct Config {
 impl Default for Config {
     fn default() -> Self {
         Self {
-            block: 3,
-            neighbourhood: 9,
+            block: 5,
+            neighbourhood: 11,
             parent_window: None,
             levels: 0,
             weights: Weights { hi: 1, lo: 2 },
