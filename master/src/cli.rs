@@ -176,7 +176,8 @@ pub struct BenchArgs {
     /// Which configuration: a = 192×192 from 64×64 (9×9, 3×3, 3 levels); b = 1000×1000
     /// from 500×500 (11×11, 5×5); paper = both; lbg = LBG against exhaustive search
     /// per level of (a) and (b) for P = 1, 2, 4, then (b) end to end with LBG on
-    /// the finest level.
+    /// the finest level; cluster = 2 local workers (1 thread each) against the local
+    /// engine (2 threads) on the finest level of (b): latency, throughput ratio, memory.
     #[arg(default_value = "paper")]
     pub which: String,
     /// Directory with the texture photos (default ../shared/textures).
@@ -185,7 +186,7 @@ pub struct BenchArgs {
     /// Batch size K.
     #[arg(long, default_value_t = 64)]
     pub batch: usize,
-    /// Repetitions of configuration (a); the best is reported.
+    /// Repetitions of configuration (a), or rounds of bench cluster; the best is reported.
     #[arg(long, default_value_t = 5)]
     pub reps: usize,
     /// Search threads (default: all cores).
@@ -197,6 +198,12 @@ pub struct BenchArgs {
     /// bench lbg: probes to measure (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "1,2,4")]
     pub lbg_probes: Vec<usize>,
+    /// bench cluster: batches measured (of --batch queries each).
+    #[arg(long, default_value_t = 60)]
+    pub batches: usize,
+    /// bench cluster: the texsyn-worker executable (default: next to texsyn, else PATH).
+    #[arg(long)]
+    pub worker_binary: Option<PathBuf>,
     /// bench lbg: training threshold (relative change of the seed displacement).
     #[arg(long, default_value_t = texsyn_worker::lbg::DEFAULT_THRESHOLD)]
     pub lbg_threshold: f64,

@@ -3,8 +3,10 @@
 
 pub mod benchmark;
 pub mod cli;
+pub mod cluster;
 pub mod colour;
 pub mod imaging;
+pub mod lbg;
 pub mod neighbourhood;
 pub mod pyramid;
 pub mod queue;

@@ -6,10 +6,12 @@ pub mod bench;
 pub mod error;
 pub mod kernel;
 pub mod layout;
+pub mod lbg;
 pub mod search;
 pub mod service;
 
 pub use error::{EngineError, Result};
 pub use kernel::{distance, Kernel, Params};
 pub use layout::{Geometry, Layout, Metric, Plane, QueryBatch, Sample, VectorSpace, Weights};
+pub use lbg::{Codebook, LbgConfig, LbgStats};
 pub use search::{merge_best, merge_topk, Engine, Hit};

@@ -294,6 +294,78 @@ async fn cluster_of_one_two_three_workers_equals_local_engine() {
     }
 }
 
+/// LBG on the cluster: each worker quantises its own range; with every
+/// partition probed the merged answer is the exhaustive one, with P = 1 every
+/// answer is a real vector of the worker's range, a range re-assigned to
+/// another worker gives the same answers, and top-k is refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn lbg_workers_quantise_their_ranges() {
+    use texsyn_worker::lbg::default_seeds;
+    let level = Level::new(9, 40);
+    let count = 19;
+    let q = level.queries(13, count);
+    let sample = level.planes();
+    let positions = texsyn_worker::layout::reference_positions(&sample, &level.geometry).unwrap();
+    let total = positions.len() as u64;
+    let space = VectorSpace::build(&sample, &level.geometry, 0..total).unwrap();
+    let mut qb = QueryBatch::new(level.geometry.layout());
+    let d = level.dims();
+    for (v, m) in q.0.chunks(d).zip(q.1.chunks(d)) {
+        qb.push(v, m).unwrap();
+    }
+    let local = Engine::default()
+        .search_best(&space, 0..total, &qb, &level.params)
+        .unwrap();
+    let cut = total / 3;
+    let ranges = [0..cut, cut..total];
+    let mut workers = Vec::new();
+    let mut clients = Vec::new();
+    for _ in 0..2 {
+        let w = Worker::start(config()).await;
+        let mut c = connect(w.addr, None).await;
+        c.load_level(level.load("job", 0)).await.unwrap();
+        clients.push(c);
+        workers.push(w);
+    }
+    let mut all = vec![Hit::NONE; count];
+    let mut one = Vec::new();
+    for (c, r) in clients.iter_mut().zip(&ranges) {
+        for (probes, epoch) in [(default_seeds((r.end - r.start) as usize), 1), (1, 2)] {
+            let mut a = assign("job", 0, r.start, r.end);
+            a.lbg_probes = probes as u32;
+            a.epoch = epoch;
+            let reply = c.assign(a).await.unwrap().into_inner();
+            assert_eq!(reply.vectors, r.end - r.start);
+            let mut b = batch("job", 0, epoch, 1, count, &q);
+            b.epoch = epoch;
+            let part = best_hits(&search(c, vec![b]).await.unwrap()[0], count).unwrap();
+            assert!(part.iter().all(|h| r.contains(&h.index)));
+            if probes == 1 {
+                one.push(part);
+            } else {
+                merge_best(&mut all, &part);
+            }
+        }
+        let mut b = batch("job", 0, 9, 2, count, &q);
+        b.epoch = 2;
+        assert_eq!(code(search(c, vec![b]).await), Code::InvalidArgument);
+    }
+    assert_eq!(all, local);
+    // The first range re-assigned to the other worker: the same codebook.
+    let c = &mut clients[1];
+    let mut a = assign("job", 0, ranges[0].start, ranges[0].end);
+    a.lbg_probes = 1;
+    a.epoch = 3;
+    c.assign(a).await.unwrap();
+    let mut b = batch("job", 0, 1, 1, count, &q);
+    b.epoch = 3;
+    let again = best_hits(&search(c, vec![b]).await.unwrap()[0], count).unwrap();
+    assert_eq!(again, one[0]);
+    for w in workers {
+        w.shutdown().await;
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn empty_range_answers_none_hits() {
     let level = Level::new(3, 24);
@@ -471,9 +543,10 @@ async fn malformed_requests_get_a_status_not_a_crash() {
         code(c.assign(assign("job", 1, 0, 10)).await),
         Code::FailedPrecondition
     );
+    // LBG over 0..10 has ⌈√10⌉ = 4 seeds: 5 probes are too many.
     let mut lbg = assign("job", 2, 0, 10);
-    lbg.lbg_probes = 2;
-    assert_eq!(code(c.assign(lbg).await), Code::Unimplemented);
+    lbg.lbg_probes = 5;
+    assert_eq!(code(c.assign(lbg).await), Code::InvalidArgument);
 
     // Loaded but not assigned.
     assert_eq!(

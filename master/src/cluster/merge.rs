@@ -86,7 +86,10 @@ mod tests {
     fn none_loses_and_nothing_gives_none() {
         let a = [Hit::NONE, h(1, u64::MAX - 1)];
         let b = [h(9, 0), Hit::NONE];
-        assert_eq!(merge_answers(2, &[&a, &b]), vec![h(9, 0), h(1, u64::MAX - 1)]);
+        assert_eq!(
+            merge_answers(2, &[&a, &b]),
+            vec![h(9, 0), h(1, u64::MAX - 1)]
+        );
         assert_eq!(merge_answers(2, &[]), vec![Hit::NONE; 2]);
         assert_eq!(merge_answers(0, &[&a]), vec![]);
     }

@@ -24,7 +24,10 @@ pub fn proportional(total: u64, weights: &[f64]) -> Vec<Range<u64>> {
     // Floor of each exact share, then the remainder to the largest fractions
     // (ties to the earlier participant).
     let exact: Vec<f64> = clean.iter().map(|w| w / sum * total as f64).collect();
-    let mut lens: Vec<u64> = exact.iter().map(|e| (e.floor() as u64).min(total)).collect();
+    let mut lens: Vec<u64> = exact
+        .iter()
+        .map(|e| (e.floor() as u64).min(total))
+        .collect();
     let mut given: u64 = lens.iter().sum();
     while given > total {
         // Rounding pushed the sum over: take from the largest.
@@ -92,7 +95,10 @@ mod tests {
         assert_eq!(proportional(7, &[]), Vec::<Range<u64>>::new());
         assert_eq!(proportional(7, &[0.0, 0.0]), vec![0..4, 4..7]);
         assert_eq!(proportional(7, &[f64::NAN, 2.0]), vec![0..0, 0..7]);
-        assert_eq!(proportional(7, &[-1.0, f64::INFINITY, 1.0]), vec![0..0, 0..0, 0..7]);
+        assert_eq!(
+            proportional(7, &[-1.0, f64::INFINITY, 1.0]),
+            vec![0..0, 0..0, 0..7]
+        );
         assert_eq!(proportional(0, &[1.0, 2.0]), vec![0..0, 0..0]);
         assert_eq!(proportional(2, &[1.0, 1.0, 1.0]), vec![0..1, 1..2, 2..2]);
     }

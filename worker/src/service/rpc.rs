@@ -224,11 +224,6 @@ impl Worker for WorkerService {
         let r = request.into_inner();
         check_job_id(&r.job_id)?;
         let level = self.shared.level(&r.job_id, r.level)?;
-        if r.lbg_probes != 0 {
-            return Err(Status::unimplemented(
-                "this worker searches exhaustively only; send lbg_probes = 0",
-            ));
-        }
         let total = level.total();
         if r.start > r.end || r.end > total {
             return Err(invalid(format!(
@@ -237,11 +232,19 @@ impl Worker for WorkerService {
             )));
         }
         let count = r.end - r.start;
+        // LBG (lbg_probes > 0): the range is quantised into ⌈√count⌉ partitions.
+        let probes = r.lbg_probes as usize;
+        if probes > 0 && count > 0 {
+            crate::lbg::check_probes(probes, crate::lbg::default_seeds(count as usize))
+                .map_err(engine_status)?;
+        }
         let per_vector =
             (level.geometry.layout().stride() + std::mem::size_of::<[u32; 2]>()) as u64;
         let need = count
             .checked_mul(per_vector)
             .and_then(|b| b.checked_add(SLACK as u64))
+            // Training holds the vectors twice (the space and the partition copies).
+            .and_then(|b| b.checked_mul(if probes > 0 { 2 } else { 1 }))
             .unwrap_or(u64::MAX);
         let max = self.shared.max_memory;
         if need.saturating_add(level.bytes) > max {
@@ -254,22 +257,40 @@ impl Worker for WorkerService {
         let lv = level.clone();
         let (start, end) = (r.start, r.end);
         let t = Instant::now();
-        let space = self
+        let engine = self.shared.engine;
+        let (space, lbg) = self
             .shared
-            .run(move || {
-                VectorSpace::build_from_positions(
+            .run(move || -> crate::Result<_> {
+                let space = VectorSpace::build_from_positions(
                     &lv.sample(),
                     &lv.geometry,
                     &lv.positions,
                     start..end,
-                )
+                )?;
+                if probes == 0 || space.is_empty() {
+                    return Ok((space, None));
+                }
+                // Deterministic per (level, range): a re-assigned range is
+                // re-quantised into the same codebook on any worker.
+                let cfg = crate::lbg::LbgConfig {
+                    seed: crate::lbg::range_seed(0, lv.level, &(start..end)),
+                    ..crate::lbg::LbgConfig::default()
+                };
+                let cb =
+                    crate::lbg::Codebook::train(&engine, &space, start..end, &lv.params, &cfg)?;
+                let placeholder = VectorSpace::from_unpadded(space.layout(), start, &[])?;
+                Ok((placeholder, Some((cb, probes))))
             })
             .await?
             .map_err(engine_status)?;
         let build_seconds = t.elapsed().as_secs_f64();
-        let vectors = space.len() as u64;
-        let bytes =
-            (space.bytes() + SLACK) as u64 + vectors * std::mem::size_of::<[u32; 2]>() as u64;
+        let vectors = match &lbg {
+            Some((cb, _)) => cb.range().end - cb.range().start,
+            None => space.len() as u64,
+        };
+        let bytes = (space.bytes() + SLACK) as u64
+            + vectors * std::mem::size_of::<[u32; 2]>() as u64
+            + lbg.as_ref().map_or(0, |(cb, _)| cb.bytes() as u64);
         self.shared.install_assignment(
             &r.job_id,
             Arc::new(Assigned {
@@ -277,6 +298,7 @@ impl Worker for WorkerService {
                 epoch: r.epoch,
                 space,
                 bytes,
+                lbg,
             }),
         )?;
         tracing::info!(
@@ -368,6 +390,11 @@ async fn search_batch(
         )));
     }
     let a = shared.assigned(&b.job_id, b.level, b.epoch)?;
+    if a.lbg.is_some() && k > 1 {
+        return Err(invalid(format!(
+            "top_k {k} is not available on an LBG assignment; send top_k 0 or 1"
+        )));
+    }
     let layout = a.space.layout();
     let dims = layout.dims();
     let expected = count
@@ -400,7 +427,9 @@ async fn search_batch(
             let space = &a.space;
             let params = &a.level.params;
             let range = space.start()..space.end();
-            let hits = if space.is_empty() {
+            let hits = if let Some((cb, probes)) = &a.lbg {
+                cb.search(&engine, &q, *probes)?
+            } else if space.is_empty() {
                 if k == 1 {
                     vec![Hit::NONE; count]
                 } else {

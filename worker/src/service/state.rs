@@ -48,8 +48,11 @@ impl Level {
 pub(crate) struct Assigned {
     pub level: Arc<Level>,
     pub epoch: u64,
+    /// The range's vectors; empty (layout and start only) when `lbg` holds them.
     pub space: VectorSpace,
     pub bytes: u64,
+    /// LBG search of the range (`lbg_probes` > 0): its codebook and the probes.
+    pub lbg: Option<(crate::lbg::Codebook, usize)>,
 }
 
 #[derive(Debug)]

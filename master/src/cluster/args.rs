@@ -1,0 +1,196 @@
+//! The cluster options of the synthesis commands (`--workers`, `--hosts`,
+//! `--local-workers`, ...), turned into validated [`ClusterOptions`] plus the
+//! local worker processes started for the run.
+
+use std::ffi::OsString;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{bail, ensure, Context, Result};
+use clap::Args;
+
+use super::hosts::{parse_worker_list, read_hosts_file, read_token_file};
+use super::local::{find_worker_binary, LocalWorkers};
+use super::ClusterOptions;
+
+#[derive(Args, Debug, Clone, Default)]
+#[command(next_help_heading = "Search cluster")]
+pub struct ClusterArgs {
+    /// Search workers (texsyn-worker), host:port,... ; levels planned as `cluster` search on them.
+    #[arg(long, value_delimiter = ',', value_name = "HOST:PORT,...")]
+    pub workers: Vec<String>,
+    /// Shared token of the workers (the file holds the secret).
+    #[arg(long, value_name = "FILE")]
+    pub token_file: Option<PathBuf>,
+    /// CA certificate (PEM) of the workers' TLS certificates; turns TLS on.
+    #[arg(long, value_name = "FILE")]
+    pub tls_ca: Option<PathBuf>,
+    /// Hosts file (TOML): [[worker]] entries with address = "host:port" and optional token_file.
+    #[arg(long, value_name = "FILE")]
+    pub hosts: Option<PathBuf>,
+    /// Start N local worker processes on 127.0.0.1..N for this run (stopped at the end).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub local_workers: usize,
+    /// Search threads per local worker (default: the cores divided among them).
+    #[arg(long, value_name = "N")]
+    pub local_worker_threads: Option<usize>,
+    /// The texsyn-worker executable for --local-workers (default: next to texsyn, else PATH).
+    #[arg(long, value_name = "PATH")]
+    pub worker_binary: Option<PathBuf>,
+    /// Fail instead of finishing locally when no worker is left.
+    #[arg(long)]
+    pub require_cluster: bool,
+    /// The master searches a share of each cluster level itself.
+    #[arg(long)]
+    pub master_share: bool,
+    /// Least time a worker gets to answer a batch, in seconds (its deadline is
+    /// this plus a multiple of the time its calibration predicts).
+    #[arg(long, default_value_t = 2.0, value_name = "SECONDS")]
+    pub worker_timeout: f64,
+}
+
+/// The cluster of one run: what to connect to, and the local workers started
+/// for it (killed when this is dropped; drop the search backend first).
+#[derive(Debug)]
+pub struct ClusterSetup {
+    pub options: ClusterOptions,
+    pub local: Option<LocalWorkers>,
+}
+
+impl ClusterArgs {
+    /// True when any worker source is given.
+    pub fn any(&self) -> bool {
+        !self.workers.is_empty() || self.hosts.is_some() || self.local_workers > 0
+    }
+
+    /// Validates the flags, reads token and hosts files, starts the local
+    /// workers. `None` when no worker source is given.
+    pub fn setup(&self) -> Result<Option<ClusterSetup>> {
+        if !self.any() {
+            for (set, flag) in [
+                (self.require_cluster, "--require-cluster"),
+                (self.master_share, "--master-share"),
+                (self.token_file.is_some(), "--token-file"),
+                (self.tls_ca.is_some(), "--tls-ca"),
+                (self.worker_binary.is_some(), "--worker-binary"),
+                (self.local_worker_threads.is_some(), "--local-worker-threads"),
+            ] {
+                if set {
+                    bail!("{flag} needs workers: add --workers, --hosts or --local-workers");
+                }
+            }
+            return Ok(None);
+        }
+        ensure!(
+            self.worker_timeout.is_finite() && (0.01..=3600.0).contains(&self.worker_timeout),
+            "--worker-timeout {} must be between 0.01 and 3600 seconds",
+            self.worker_timeout
+        );
+        if self.local_workers > 0 && self.tls_ca.is_some() {
+            bail!("--tls-ca cannot be used with --local-workers: local workers listen on loopback without TLS");
+        }
+        if self.local_workers == 0 && self.local_worker_threads.is_some() {
+            bail!("--local-worker-threads needs --local-workers N");
+        }
+        let token = self
+            .token_file
+            .as_deref()
+            .map(read_token_file)
+            .transpose()?;
+        let mut workers = parse_worker_list(&self.workers, token.as_deref())?;
+        if let Some(h) = &self.hosts {
+            workers.extend(read_hosts_file(h, token.as_deref())?);
+        }
+        let tls_ca = self
+            .tls_ca
+            .as_ref()
+            .map(|p| {
+                std::fs::read(p).with_context(|| format!("cannot read --tls-ca {}", p.display()))
+            })
+            .transpose()?;
+        let local = if self.local_workers > 0 {
+            let binary = find_worker_binary(self.worker_binary.as_deref())?;
+            let l = LocalWorkers::spawn(
+                &binary,
+                self.local_workers,
+                self.local_worker_threads,
+                &Vec::<OsString>::new(),
+            )?;
+            workers.extend(l.specs());
+            Some(l)
+        } else {
+            None
+        };
+        let mut seen = std::collections::HashSet::new();
+        for w in &workers {
+            if !seen.insert(w.address.as_str()) {
+                bail!("worker {} is listed twice", w.address);
+            }
+        }
+        Ok(Some(ClusterSetup {
+            options: ClusterOptions {
+                workers,
+                tls_ca,
+                require_cluster: self.require_cluster,
+                master_share: self.master_share,
+                deadline_floor: Duration::from_secs_f64(self.worker_timeout),
+                ..ClusterOptions::default()
+            },
+            local,
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cluster_flags_without_workers_are_refused() {
+        assert!(ClusterArgs::default().setup().unwrap().is_none());
+        let a = ClusterArgs {
+            require_cluster: true,
+            ..Default::default()
+        };
+        let e = a.setup().unwrap_err().to_string();
+        assert!(e.contains("--require-cluster") && e.contains("--workers"), "{e}");
+    }
+
+    #[test]
+    fn workers_and_options_are_validated() {
+        let a = ClusterArgs {
+            workers: vec!["127.0.0.1:7000".into(), "127.0.0.2:7000".into()],
+            worker_timeout: 2.0,
+            master_share: true,
+            ..Default::default()
+        };
+        let s = a.setup().unwrap().unwrap();
+        assert_eq!(s.options.workers.len(), 2);
+        assert!(s.options.master_share);
+        assert!(s.local.is_none());
+        for bad in [
+            ClusterArgs {
+                workers: vec!["a:1".into(), "a:1".into()],
+                ..a.clone()
+            },
+            ClusterArgs {
+                worker_timeout: 0.0,
+                ..a.clone()
+            },
+            ClusterArgs {
+                workers: vec!["nope".into()],
+                ..a.clone()
+            },
+            ClusterArgs {
+                local_worker_threads: Some(1),
+                ..a.clone()
+            },
+            ClusterArgs {
+                token_file: Some("/nonexistent/token".into()),
+                ..a.clone()
+            },
+        ] {
+            assert!(bad.setup().is_err(), "{bad:?}");
+        }
+    }
+}

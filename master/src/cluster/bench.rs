@@ -1,0 +1,331 @@
+//! `texsyn bench cluster`: the cluster on loopback against the local engine
+//! (DESIGN §4, §5). On the finest level of the paper's configuration (b)
+//! (500×500 sample, 11×11 neighbourhood, 7×7 parent window) it measures
+//!
+//! - the round-trip latency per batch (and per 1-query batch), against the
+//!   search time the workers report;
+//! - the throughput of 2 local worker processes with 1 search thread each,
+//!   over the local engine with 2 threads on the same queries (target ≥ 0.85);
+//! - each worker's peak memory (VmHWM) against the bytes of its vector range
+//!   (target ≤ 1.2 × range bytes + 64 MB).
+//!
+//! The cluster's answers are checked against the local engine's on every batch.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{ensure, Context, Result};
+use rand::{Rng, SeedableRng};
+use texsyn_worker::{Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample, Weights};
+
+use super::{find_worker_binary, ClusterOptions, ClusterSearch, LocalWorkers};
+use crate::imaging;
+use crate::pyramid;
+use crate::search::{LevelData, LocalSearch, SearchBackend};
+
+/// What `texsyn bench cluster` needs.
+pub struct ClusterBench<'a> {
+    pub textures: &'a Path,
+    /// Queries per batch.
+    pub batch: usize,
+    /// Batches measured (after 3 warm-up batches).
+    pub batches: usize,
+    /// Rounds, alternating local and cluster; the best of each is compared.
+    pub rounds: usize,
+    pub worker_binary: Option<&'a Path>,
+}
+
+/// Peak resident memory (VmHWM) of a process in bytes, from /proc.
+pub fn peak_memory(pid: u32) -> Option<u64> {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    let i = ((sorted.len() - 1) as f64 * p).round() as usize;
+    sorted[i.min(sorted.len() - 1)]
+}
+
+fn ms(s: f64) -> String {
+    format!("{:.3} ms", s * 1e3)
+}
+
+/// Random query batches made from reference vectors with about a third of the
+/// hi components masked out (as on a partly synthesised canvas).
+fn make_batches(
+    space: &texsyn_worker::VectorSpace,
+    count: usize,
+    per: usize,
+    seed: u64,
+) -> Result<Vec<QueryBatch>> {
+    let l = space.layout();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut out = Vec::with_capacity(count);
+    for _ in 0..count {
+        let mut b = QueryBatch::new(l);
+        for _ in 0..per {
+            let idx = rng.random_range(space.start()..space.end());
+            let v = space.vector(idx).context("vector")?;
+            let mut values = Vec::with_capacity(l.dims());
+            values.extend_from_slice(&v[..l.hi_len]);
+            values.extend_from_slice(&v[l.hi_pad..l.hi_pad + l.lo_len]);
+            for x in &mut values {
+                *x = x.saturating_add(rng.random_range(0..3));
+            }
+            let mask: Vec<u8> = (0..l.dims())
+                .map(|i| u8::from(i >= l.hi_len || rng.random_range(0..3) != 0))
+                .collect();
+            b.push(&values, &mask)?;
+        }
+        out.push(b);
+    }
+    Ok(out)
+}
+
+pub fn run(b: &ClusterBench) -> Result<()> {
+    ensure!(b.batch >= 1 && b.batches >= 1, "--batch and --batches must be ≥ 1");
+    let file = b.textures.join("gravel_gray_500.png");
+    let img = imaging::load_color(&file)?;
+    let lum = imaging::luminance(&img);
+    let parent = pyramid::downsample(&lum, None, false);
+    let geometry = Geometry::new(11, Geometry::parent_window_for(11))?;
+    let params = Params {
+        metric: Metric::L1,
+        weights: Weights::new(1, 2)?,
+    };
+    let sample = Sample {
+        fine: Plane::new(lum.width, lum.height, &lum.data, None)?,
+        parent: Some(Plane::new(
+            parent.width,
+            parent.height,
+            &parent.data,
+            None,
+        )?),
+    };
+    let positions = texsyn_worker::layout::reference_positions(&sample, &geometry)?;
+    let data = LevelData {
+        level: 0,
+        geometry,
+        params,
+        sample,
+        positions: &positions,
+        levels: 1,
+        expected_queries: (b.batch * b.batches) as u64,
+    };
+    let engine = Engine::default();
+    let stride = geometry.layout().stride();
+    let total = positions.len();
+    println!(
+        "level: {}x{} sample {}, {}x{} neighbourhood + {}x{} parent window: {} reference vectors x {} bytes = {:.1} MB; kernel {}",
+        lum.width,
+        lum.height,
+        file.display(),
+        geometry.n,
+        geometry.n,
+        geometry.m,
+        geometry.m,
+        total,
+        stride,
+        (total * stride) as f64 / 1e6,
+        engine.kernel().name()
+    );
+
+    // The local engine, 2 threads, and 2 local workers with 1 search thread each.
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build()?;
+    let mut local = LocalSearch::new(engine);
+    pool.install(|| local.load_level(&data))?;
+    let full = texsyn_worker::VectorSpace::build_from_positions(
+        &data.sample,
+        &geometry,
+        &positions,
+        0..total as u64,
+    )?;
+    let warm = 3;
+    let batches = make_batches(&full, warm + b.batches, b.batch, 11)?;
+    drop(full);
+    let binary = find_worker_binary(b.worker_binary)?;
+    let workers = LocalWorkers::spawn(&binary, 2, Some(1), &[])?;
+    let mut cluster = ClusterSearch::connect(
+        ClusterOptions {
+            workers: workers.specs(),
+            require_cluster: true,
+            ..ClusterOptions::default()
+        },
+        engine,
+    )?;
+    let t = Instant::now();
+    cluster.load_level(&data)?;
+    let load_seconds = t.elapsed().as_secs_f64();
+
+    // Rounds alternate the two, so a noisy neighbour on the machine hits both alike.
+    let queries = (b.batches * b.batch) as f64;
+    let mut local_qps: f64 = 0.0;
+    let mut cluster_qps: f64 = 0.0;
+    let mut ratios = Vec::new();
+    let mut rtts = Vec::new();
+    let worker_seconds = |c: &ClusterSearch| -> Vec<f64> {
+        c.stats()["workers"]
+            .as_array()
+            .map(|w| w.iter().filter_map(|x| x["seconds"].as_f64()).collect())
+            .unwrap_or_default()
+    };
+    let mut worker_per_batch = vec![0.0; 2];
+    for _ in 0..b.rounds.max(1) {
+        let mut truth: Vec<Vec<Hit>> = Vec::new();
+        let mut local_seconds = 0.0;
+        pool.install(|| -> Result<()> {
+            for (i, q) in batches.iter().enumerate() {
+                let t = Instant::now();
+                let h = local.search(q)?;
+                if i >= warm {
+                    local_seconds += t.elapsed().as_secs_f64();
+                }
+                truth.push(h);
+            }
+            Ok(())
+        })?;
+        let mut round_rtts = Vec::new();
+        let mut cluster_seconds = 0.0;
+        let mut before = worker_seconds(&cluster);
+        for (i, q) in batches.iter().enumerate() {
+            if i == warm {
+                before = worker_seconds(&cluster);
+            }
+            let t = Instant::now();
+            let h = cluster.search(q)?;
+            let dt = t.elapsed().as_secs_f64();
+            ensure!(
+                h == truth[i],
+                "batch {i}: the cluster's answers differ from the local engine's"
+            );
+            if i >= warm {
+                cluster_seconds += dt;
+                round_rtts.push(dt);
+            }
+        }
+        let after = worker_seconds(&cluster);
+        let (lq, cq) = (queries / local_seconds, queries / cluster_seconds);
+        ratios.push(cq / lq);
+        if cq > cluster_qps {
+            cluster_qps = cq;
+            rtts = round_rtts;
+            for (k, w) in worker_per_batch.iter_mut().enumerate() {
+                *w = (after.get(k).unwrap_or(&0.0) - before.get(k).unwrap_or(&0.0))
+                    / b.batches as f64;
+            }
+        }
+        local_qps = local_qps.max(lq);
+    }
+    local.end_level();
+    drop(local);
+    let stats = cluster.stats();
+    ratios.sort_by(f64::total_cmp);
+    // 1-query batches: the fixed cost of a round trip.
+    let mut small = Vec::new();
+    for q in batches.iter().take(20) {
+        let mut one = QueryBatch::new(q.layout());
+        let l = q.layout();
+        let (v, m) = (q.values(0), q.mask(0));
+        let mut values = v[..l.hi_len].to_vec();
+        values.extend_from_slice(&v[l.hi_pad..l.hi_pad + l.lo_len]);
+        let mut mask = m[..l.hi_len].to_vec();
+        mask.extend_from_slice(&m[l.hi_pad..l.hi_pad + l.lo_len]);
+        one.push(&values, &mask)?;
+        let t = Instant::now();
+        cluster.search(&one)?;
+        small.push(t.elapsed().as_secs_f64());
+    }
+    rtts.sort_by(f64::total_cmp);
+    small.sort_by(f64::total_cmp);
+
+    println!(
+        "cluster: 2 local workers x 1 thread ({}), level loaded and assigned in {}",
+        stats["workers"]
+            .as_array()
+            .map(|w| w
+                .iter()
+                .map(|x| format!(
+                    "{} calibrated {:.3e} pairs/s",
+                    x["address"].as_str().unwrap_or("?"),
+                    x["calibrated_pairs_per_second"].as_f64().unwrap_or(0.0)
+                ))
+                .collect::<Vec<_>>()
+                .join(", "))
+            .unwrap_or_default(),
+        ms(load_seconds)
+    );
+    let slowest = worker_per_batch.iter().copied().fold(0.0, f64::max);
+    let mean_rtt = rtts.iter().sum::<f64>() / rtts.len().max(1) as f64;
+    println!(
+        "round trip per batch of {} queries (best of {} rounds): median {}  p90 {}  max {}; the workers' own search time per batch {} (slowest {}), so transport + merge + imbalance ≈ {} per batch",
+        b.batch,
+        b.rounds.max(1),
+        ms(percentile(&rtts, 0.5)),
+        ms(percentile(&rtts, 0.9)),
+        ms(percentile(&rtts, 1.0)),
+        worker_per_batch.iter().map(|&w| ms(w)).collect::<Vec<_>>().join(" / "),
+        ms(slowest),
+        ms(mean_rtt - slowest)
+    );
+    println!(
+        "round trip per batch of 1 query: median {}  p90 {}",
+        ms(percentile(&small, 0.5)),
+        ms(percentile(&small, 0.9))
+    );
+    let ratio = cluster_qps / local_qps;
+    println!(
+        "throughput (best of {} rounds): local engine 2 threads {:.0} queries/s ({:.2} G pairs/s); cluster 2 workers x 1 thread {:.0} queries/s; ratio {:.3} (target >= 0.85: {}); per-round ratios min {:.3} median {:.3} max {:.3}",
+        b.rounds.max(1),
+        local_qps,
+        local_qps * total as f64 / 1e9,
+        cluster_qps,
+        ratio,
+        if ratio >= 0.85 { "met" } else { "NOT met" },
+        percentile(&ratios, 0.0),
+        percentile(&ratios, 0.5),
+        percentile(&ratios, 1.0)
+    );
+    // Peak memory against each worker's range.
+    let ranges: Vec<(String, u64)> = stats["events"]
+        .as_array()
+        .and_then(|e| e.iter().rev().find(|e| e["kind"] == "partition"))
+        .and_then(|e| e["shares"].as_array())
+        .map(|s| {
+            s.iter()
+                .map(|x| {
+                    (
+                        x["worker"].as_str().unwrap_or("").to_string(),
+                        x["end"].as_u64().unwrap_or(0) - x["start"].as_u64().unwrap_or(0),
+                    )
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    for w in &workers.workers {
+        let addr = w.address.to_string();
+        let len = ranges
+            .iter()
+            .find(|(a, _)| *a == addr)
+            .map_or(0, |(_, l)| *l);
+        let range_bytes = len * stride as u64;
+        let limit = range_bytes as f64 * 1.2 + 64e6;
+        match peak_memory(w.pid()) {
+            Some(hwm) => println!(
+                "worker {addr}: {len} vectors = {:.1} MB of range; peak memory (VmHWM) {:.1} MB; limit 1.2 x range + 64 MB = {:.1} MB: {}",
+                range_bytes as f64 / 1e6,
+                hwm as f64 / 1e6,
+                limit / 1e6,
+                if (hwm as f64) <= limit { "met" } else { "NOT met" }
+            ),
+            None => println!("worker {addr}: peak memory not readable (no /proc)"),
+        }
+    }
+    drop(cluster);
+    drop(workers);
+    Ok(())
+}

@@ -1,0 +1,409 @@
+//! The master's side of the `texsyn.v1.Worker` calls. Every function takes and
+//! returns owned values (clients are cheap clones), so the cluster can run one
+//! per worker concurrently on its runtime; every call has a deadline, set both
+//! as the gRPC timeout header and as a local timer (a stopped worker never
+//! answers, so the local timer is what ends the wait).
+
+use std::future::Future;
+use std::ops::Range;
+use std::time::{Duration, Instant};
+
+use texsyn_proto::v1 as pb;
+use texsyn_worker::service::{best_hits, BearerAuth};
+use texsyn_worker::Hit;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::codegen::InterceptedService;
+use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint};
+use tonic::{Request, Status, Streaming};
+
+use super::hosts::{split_address, WorkerSpec};
+use super::merge::check_part;
+
+pub(crate) type Client = pb::worker_client::WorkerClient<InterceptedService<Channel, BearerAuth>>;
+
+/// Largest answer the master decodes (answers are 24 bytes per query at most).
+const MAX_DECODE: usize = 256 << 20;
+
+/// A status as one line: `Unauthenticated: wrong token ...`.
+pub(crate) fn status_text(s: &Status) -> String {
+    format!("{:?}: {}", s.code(), s.message())
+}
+
+/// Runs `f` with a deadline of `d`: the result, or why there is none.
+pub(crate) async fn within<T>(
+    d: Duration,
+    what: &str,
+    f: impl Future<Output = Result<T, Status>>,
+) -> Result<T, String> {
+    match tokio::time::timeout(d, f).await {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(s)) => Err(format!("{what} failed: {}", status_text(&s))),
+        Err(_) => Err(format!(
+            "{what} missed its deadline of {} ms",
+            d.as_millis()
+        )),
+    }
+}
+
+fn request<T>(msg: T, d: Duration) -> Request<T> {
+    let mut r = Request::new(msg);
+    r.set_timeout(d);
+    r
+}
+
+/// Opens a channel to the worker (TLS when a CA is given) with the token interceptor.
+pub(crate) async fn connect(
+    spec: &WorkerSpec,
+    tls_ca: Option<&[u8]>,
+    timeout: Duration,
+) -> Result<Client, String> {
+    let (host, port) = split_address(&spec.address).map_err(|e| format!("{e:#}"))?;
+    let scheme = if tls_ca.is_some() { "https" } else { "http" };
+    let mut endpoint = Endpoint::from_shared(format!("{scheme}://{host}:{port}"))
+        .map_err(|e| format!("invalid address: {e}"))?
+        .connect_timeout(timeout)
+        .tcp_nodelay(true)
+        .http2_keep_alive_interval(Duration::from_secs(10))
+        .keep_alive_timeout(Duration::from_secs(10))
+        .keep_alive_while_idle(true);
+    if let Some(ca) = tls_ca {
+        let domain = host
+            .trim_start_matches('[')
+            .trim_end_matches(']')
+            .to_string();
+        endpoint = endpoint
+            .tls_config(
+                ClientTlsConfig::new()
+                    .ca_certificate(Certificate::from_pem(ca))
+                    .domain_name(domain),
+            )
+            .map_err(|e| format!("TLS setup failed: {e}"))?;
+    }
+    let channel = match tokio::time::timeout(timeout, endpoint.connect()).await {
+        Ok(Ok(c)) => c,
+        Ok(Err(e)) => {
+            let mut msg = e.to_string();
+            let mut src = std::error::Error::source(&e);
+            while let Some(s) = src {
+                msg = format!("{msg}: {s}");
+                src = s.source();
+            }
+            return Err(format!("cannot connect: {msg}"));
+        }
+        Err(_) => return Err(format!("cannot connect within {} ms", timeout.as_millis())),
+    };
+    let auth = BearerAuth::new(spec.token.as_deref()).map_err(|e| format!("{e:#}"))?;
+    Ok(
+        pb::worker_client::WorkerClient::with_interceptor(channel, auth)
+            .max_decoding_message_size(MAX_DECODE),
+    )
+}
+
+/// What the master keeps from a worker's Info and Calibrate.
+#[derive(Debug, Clone)]
+pub(crate) struct WorkerInfo {
+    pub version: String,
+    pub cores: u32,
+    pub threads: u32,
+    pub kernel: String,
+    pub load_average: f64,
+    pub max_message: u64,
+}
+
+/// The version handshake: a worker of another protocol version is refused
+/// with a message naming both versions.
+pub(crate) fn check_protocol(
+    address: &str,
+    ours: u32,
+    reply: &pb::InfoReply,
+) -> Result<WorkerInfo, String> {
+    if reply.protocol_version != ours {
+        return Err(format!(
+            "protocol version mismatch: this master speaks version {ours}, worker {address} (texsyn {}) speaks version {}; run the same texsyn release on both",
+            if reply.version.is_empty() { "?" } else { &reply.version },
+            reply.protocol_version
+        ));
+    }
+    Ok(WorkerInfo {
+        version: reply.version.clone(),
+        cores: reply.cores,
+        threads: reply.threads,
+        kernel: reply.kernel.clone(),
+        load_average: reply.load_average,
+        max_message: reply.max_message_bytes,
+    })
+}
+
+/// Size of the calibration's dummy search (0 = the worker's default).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CalibrationSize {
+    pub seed: u64,
+    pub vectors: u32,
+    pub dims: u32,
+    pub queries: u32,
+}
+
+impl Default for CalibrationSize {
+    fn default() -> Self {
+        Self {
+            seed: 0x7e75,
+            vectors: 65_536,
+            dims: 106,
+            queries: 32,
+        }
+    }
+}
+
+/// Runs the worker's calibration; its throughput in reference × query pairs per second.
+pub(crate) async fn calibrate(
+    mut client: Client,
+    size: CalibrationSize,
+    d: Duration,
+) -> Result<f64, String> {
+    let r = within(
+        d,
+        "Calibrate",
+        client.calibrate(request(
+            pb::CalibrateRequest {
+                seed: size.seed,
+                vectors: size.vectors,
+                dims: size.dims,
+                queries: size.queries,
+            },
+            d,
+        )),
+    )
+    .await?
+    .into_inner();
+    if !(r.pairs_per_second.is_finite() && r.pairs_per_second > 0.0) {
+        return Err(format!(
+            "Calibrate answered an invalid throughput {}",
+            r.pairs_per_second
+        ));
+    }
+    Ok(r.pairs_per_second)
+}
+
+/// A connected worker that passed the version handshake.
+pub(crate) struct Handshake {
+    pub client: Client,
+    pub info: WorkerInfo,
+}
+
+/// Connect and Info (version handshake).
+pub(crate) async fn handshake(
+    spec: WorkerSpec,
+    tls_ca: Option<Vec<u8>>,
+    protocol: u32,
+    connect_timeout: Duration,
+    call_timeout: Duration,
+) -> Result<Handshake, String> {
+    let mut client = connect(&spec, tls_ca.as_deref(), connect_timeout).await?;
+    let reply = within(
+        call_timeout,
+        "Info",
+        client.info(request(
+            pb::InfoRequest {
+                protocol_version: protocol,
+            },
+            call_timeout,
+        )),
+    )
+    .await?
+    .into_inner();
+    let info = check_protocol(&spec.address, protocol, &reply)?;
+    Ok(Handshake { client, info })
+}
+
+pub(crate) async fn load_level(
+    mut client: Client,
+    req: pb::LoadLevelRequest,
+    d: Duration,
+) -> Result<pb::LoadLevelReply, String> {
+    Ok(within(d, "LoadLevel", client.load_level(request(req, d)))
+        .await?
+        .into_inner())
+}
+
+pub(crate) async fn assign(
+    mut client: Client,
+    req: pb::AssignRequest,
+    d: Duration,
+) -> Result<pb::AssignReply, String> {
+    Ok(within(d, "Assign", client.assign(request(req, d)))
+        .await?
+        .into_inner())
+}
+
+pub(crate) async fn end_job(
+    mut client: Client,
+    job_id: String,
+    d: Duration,
+) -> Result<u64, String> {
+    Ok(within(
+        d,
+        "EndJob",
+        client.end_job(request(pb::EndJobRequest { job_id }, d)),
+    )
+    .await?
+    .into_inner()
+    .freed_bytes)
+}
+
+/// The long-lived bidirectional search stream to one worker.
+pub(crate) struct SearchStream {
+    tx: mpsc::Sender<pb::SearchBatch>,
+    rx: Streaming<pb::SearchResult>,
+}
+
+pub(crate) async fn open_stream(mut client: Client, d: Duration) -> Result<SearchStream, String> {
+    let (tx, rx) = mpsc::channel(8);
+    let rx = within(
+        d,
+        "opening the search stream",
+        client.search(ReceiverStream::new(rx)),
+    )
+    .await?
+    .into_inner();
+    Ok(SearchStream { tx, rx })
+}
+
+/// One worker's part of a batch: the chunks (each under the worker's message
+/// limit), the range they search and the deadline for all of them.
+pub(crate) struct Part {
+    pub chunks: Vec<pb::SearchBatch>,
+    pub range: Range<u64>,
+    pub deadline: Instant,
+}
+
+/// What came back for one part.
+pub(crate) struct PartAnswer {
+    /// The stream, for the next batch (None when it failed).
+    pub stream: Option<SearchStream>,
+    pub result: Result<Vec<Hit>, String>,
+    /// Wall time from sending to the last answer.
+    pub wall: f64,
+    /// Search time the worker reported.
+    pub search_seconds: f64,
+}
+
+/// Sends the part's chunks one after the other on `stream` and reads each
+/// answer, all before `deadline`; every answer is checked for shape and range.
+pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer {
+    let started = Instant::now();
+    let mut hits = Vec::new();
+    let mut search_seconds = 0.0;
+    let deadline = tokio::time::Instant::from_std(part.deadline);
+    let budget = part.deadline.saturating_duration_since(started);
+    let mut failure = None;
+    for chunk in part.chunks {
+        let (id, count) = (chunk.batch_id, chunk.count as usize);
+        let sent = tokio::time::timeout_at(deadline, stream.tx.send(chunk)).await;
+        match sent {
+            Ok(Ok(())) => {}
+            Ok(Err(_)) => {
+                failure = Some("closed the search stream".to_string());
+                break;
+            }
+            Err(_) => {
+                failure = Some(format!("missed its deadline of {} ms", budget.as_millis()));
+                break;
+            }
+        }
+        match tokio::time::timeout_at(deadline, stream.rx.message()).await {
+            Err(_) => {
+                failure = Some(format!("missed its deadline of {} ms", budget.as_millis()));
+                break;
+            }
+            Ok(Err(s)) => {
+                failure = Some(format!("search failed: {}", status_text(&s)));
+                break;
+            }
+            Ok(Ok(None)) => {
+                failure = Some("closed the search stream".to_string());
+                break;
+            }
+            Ok(Ok(Some(r))) => {
+                if r.batch_id != id {
+                    failure = Some(format!(
+                        "answered batch {} when batch {id} was asked",
+                        r.batch_id
+                    ));
+                    break;
+                }
+                match best_hits(&r, count) {
+                    Ok(h) => {
+                        if let Err(e) = check_part(&h, count, &part.range) {
+                            failure = Some(e);
+                            break;
+                        }
+                        hits.extend(h);
+                        if r.seconds.is_finite() && r.seconds >= 0.0 {
+                            search_seconds += r.seconds;
+                        }
+                    }
+                    Err(e) => {
+                        failure = Some(format!("{e:#}"));
+                        break;
+                    }
+                }
+            }
+        }
+    }
+    let wall = started.elapsed().as_secs_f64();
+    match failure {
+        Some(e) => PartAnswer {
+            stream: None,
+            result: Err(e),
+            wall,
+            search_seconds,
+        },
+        None => PartAnswer {
+            stream: Some(stream),
+            result: Ok(hits),
+            wall,
+            search_seconds,
+        },
+    }
+}
+
+/// Runs `f` on `rt` from synchronous code. Inside another runtime's context
+/// (an async caller) it blocks a helper thread instead of panicking.
+pub(crate) fn block_on<F>(rt: &tokio::runtime::Runtime, f: F) -> F::Output
+where
+    F: Future + Send,
+    F::Output: Send,
+{
+    if tokio::runtime::Handle::try_current().is_ok() {
+        std::thread::scope(|s| match s.spawn(|| rt.block_on(f)).join() {
+            Ok(v) => v,
+            Err(p) => std::panic::resume_unwind(p),
+        })
+    } else {
+        rt.block_on(f)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn protocol_mismatch_names_both_versions() {
+        let reply = pb::InfoReply {
+            protocol_version: 7,
+            version: "9.9.9".into(),
+            ..Default::default()
+        };
+        let e = check_protocol("10.0.0.1:7878", 1, &reply).unwrap_err();
+        assert!(e.contains("version 1") && e.contains("version 7"), "{e}");
+        assert!(e.contains("10.0.0.1:7878") && e.contains("9.9.9"), "{e}");
+        let ok = pb::InfoReply {
+            protocol_version: 1,
+            threads: 3,
+            ..Default::default()
+        };
+        assert_eq!(check_protocol("a:1", 1, &ok).unwrap().threads, 3);
+    }
+}

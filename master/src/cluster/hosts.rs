@@ -1,0 +1,236 @@
+//! Where the workers are: `--workers host:port,...`, a hosts file (TOML) and the
+//! token files that go with them (DESIGN §4 "Discovery").
+//!
+//! ```toml
+//! # hosts.toml
+//! [[worker]]
+//! address = "192.168.1.20:7878"
+//! token_file = "/etc/texsyn/token"   # optional; default: --token-file
+//!
+//! [[worker]]
+//! address = "render2.lan:7878"
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, ensure, Context, Result};
+
+/// One worker the master should use.
+#[derive(Clone, PartialEq, Eq)]
+pub struct WorkerSpec {
+    /// `host:port` (or `http(s)://host:port`) as the user wrote it.
+    pub address: String,
+    /// Shared token sent on every call, if the worker requires one.
+    pub token: Option<String>,
+}
+
+impl std::fmt::Debug for WorkerSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("WorkerSpec")
+            .field("address", &self.address)
+            .field("token", &self.token.as_ref().map(|_| "<redacted>"))
+            .finish()
+    }
+}
+
+impl WorkerSpec {
+    pub fn new(address: impl Into<String>, token: Option<String>) -> Self {
+        Self {
+            address: address.into(),
+            token,
+        }
+    }
+}
+
+/// Splits `host:port` (also `[v6]:port`, optionally prefixed with `http://` or
+/// `https://`) into host and port, checking both.
+pub fn split_address(address: &str) -> Result<(String, u16)> {
+    let a = address.trim();
+    let a = a
+        .strip_prefix("http://")
+        .or_else(|| a.strip_prefix("https://"))
+        .unwrap_or(a)
+        .trim_end_matches('/');
+    let (host, port) = a.rsplit_once(':').with_context(|| {
+        format!("worker address '{address}' is not host:port, e.g. 192.168.1.20:7878")
+    })?;
+    let port: u16 = port
+        .parse()
+        .with_context(|| format!("port '{port}' of worker address '{address}' is not 1..=65535"))?;
+    ensure!(
+        port != 0,
+        "worker address '{address}' has port 0; give the port the worker printed"
+    );
+    let bare = host.trim_start_matches('[').trim_end_matches(']');
+    ensure!(
+        !bare.is_empty()
+            && bare
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | ':' | '_')),
+        "host '{host}' of worker address '{address}' is not a host name or IP address"
+    );
+    Ok((host.to_string(), port))
+}
+
+/// Reads a token file: its contents trimmed; empty or non-printable tokens are refused.
+pub fn read_token_file(path: &Path) -> Result<String> {
+    let raw = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read the token file {}", path.display()))?;
+    let token = raw.trim().to_string();
+    ensure!(
+        !token.is_empty(),
+        "the token file {} is empty; put the workers' shared secret in it",
+        path.display()
+    );
+    ensure!(
+        token.bytes().all(|b| b.is_ascii_graphic()),
+        "the token in {} must be printable ASCII without spaces",
+        path.display()
+    );
+    Ok(token)
+}
+
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HostsFile {
+    #[serde(default)]
+    worker: Vec<HostEntry>,
+}
+
+#[derive(serde::Deserialize)]
+struct HostEntry {
+    address: String,
+    token_file: Option<PathBuf>,
+    /// Keys for other tools (e.g. launching over ssh); ignored here, with a note.
+    #[serde(flatten)]
+    other: std::collections::BTreeMap<String, toml::Value>,
+}
+
+/// Largest hosts file read (it is a short list).
+const MAX_HOSTS_FILE: u64 = 1 << 20;
+
+/// Reads a hosts file. A worker's `token_file` (relative paths are relative to
+/// the hosts file) overrides `default_token`.
+pub fn read_hosts_file(path: &Path, default_token: Option<&str>) -> Result<Vec<WorkerSpec>> {
+    let meta = std::fs::metadata(path)
+        .with_context(|| format!("cannot read the hosts file {}", path.display()))?;
+    ensure!(
+        meta.len() <= MAX_HOSTS_FILE,
+        "the hosts file {} is {} bytes; a hosts file is a short TOML list of workers",
+        path.display(),
+        meta.len()
+    );
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read the hosts file {}", path.display()))?;
+    let parsed: HostsFile = toml::from_str(&text).with_context(|| {
+        format!(
+            "the hosts file {} is not a list of [[worker]] entries with address = \"host:port\" (and optional token_file)",
+            path.display()
+        )
+    })?;
+    if parsed.worker.is_empty() {
+        bail!(
+            "the hosts file {} lists no workers; add [[worker]] entries with address = \"host:port\"",
+            path.display()
+        );
+    }
+    let base = path.parent().unwrap_or(Path::new("."));
+    parsed
+        .worker
+        .into_iter()
+        .map(|e| {
+            split_address(&e.address)
+                .with_context(|| format!("in the hosts file {}", path.display()))?;
+            if !e.other.is_empty() {
+                let keys: Vec<&str> = e.other.keys().map(String::as_str).collect();
+                tracing::debug!(address = %e.address, ?keys, "hosts file keys not used for connecting");
+            }
+            let token = match &e.token_file {
+                Some(f) => Some(read_token_file(&base.join(f))?),
+                None => default_token.map(str::to_string),
+            };
+            Ok(WorkerSpec::new(e.address, token))
+        })
+        .collect()
+}
+
+/// Parses a `--workers a:1,b:2` list (empty entries are ignored).
+pub fn parse_worker_list(list: &[String], token: Option<&str>) -> Result<Vec<WorkerSpec>> {
+    let mut out = Vec::new();
+    for item in list.iter().flat_map(|s| s.split(',')) {
+        let item = item.trim();
+        if item.is_empty() {
+            continue;
+        }
+        split_address(item)?;
+        out.push(WorkerSpec::new(item, token.map(str::to_string)));
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn addresses_are_checked() {
+        assert_eq!(
+            split_address("127.0.0.2:7878").unwrap(),
+            ("127.0.0.2".into(), 7878)
+        );
+        assert_eq!(split_address("[::1]:80").unwrap(), ("[::1]".into(), 80));
+        assert_eq!(
+            split_address("https://render-1.lan:443/").unwrap(),
+            ("render-1.lan".into(), 443)
+        );
+        for bad in [
+            "",
+            "host",
+            "host:",
+            "host:0",
+            "host:99999",
+            ":80",
+            "a b:80",
+            "h/x:1",
+        ] {
+            assert!(split_address(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn worker_list_and_hosts_file() {
+        let l = parse_worker_list(&["a:1, b:2".into(), "c:3".into()], Some("t")).unwrap();
+        assert_eq!(l.len(), 3);
+        assert_eq!(l[1].address, "b:2");
+        assert_eq!(l[2].token.as_deref(), Some("t"));
+        assert!(parse_worker_list(&["a:1,nope".into()], None).is_err());
+
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("tok"), "s3cret\n").unwrap();
+        let hosts = dir.path().join("hosts.toml");
+        std::fs::write(
+            &hosts,
+            "[[worker]]\naddress = \"10.0.0.1:7878\"\ntoken_file = \"tok\"\n\n[[worker]]\naddress = \"10.0.0.2:7878\"\n",
+        )
+        .unwrap();
+        let w = read_hosts_file(&hosts, Some("default")).unwrap();
+        assert_eq!(w.len(), 2);
+        assert_eq!(w[0].token.as_deref(), Some("s3cret"));
+        assert_eq!(w[1].token.as_deref(), Some("default"));
+        assert!(!format!("{w:?}").contains("s3cret"));
+
+        for bad in [
+            "",
+            "[[worker]]\nadress = \"a:1\"\n",
+            "[[workers]]\naddress = \"a:1\"\n",
+            "[[worker]]\naddress = \"a\"\n",
+            "[[worker]]\naddress = \"a:1\"\ntoken_file = \"missing\"\n",
+            "not toml at all",
+        ] {
+            std::fs::write(&hosts, bad).unwrap();
+            assert!(read_hosts_file(&hosts, None).is_err(), "{bad}");
+        }
+        std::fs::write(dir.path().join("empty"), "  \n").unwrap();
+        assert!(read_token_file(&dir.path().join("empty")).is_err());
+    }
+}

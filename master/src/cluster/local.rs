@@ -1,0 +1,307 @@
+//! A local multi-process cluster (`--local-workers N`, DESIGN §4 "Discovery"):
+//! `texsyn-worker` processes on 127.0.0.1, 127.0.0.2, ... with port 0, a fresh
+//! random token in a 0600 file, their ports read from the `listening on ADDR`
+//! line. They are killed when [`LocalWorkers`] is dropped, on success and on
+//! error alike.
+
+use std::ffi::OsString;
+use std::io::{BufRead, BufReader, Read, Seek};
+use std::net::{Ipv4Addr, SocketAddr};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use texsyn_worker::service::parse_listening_line;
+
+use super::hosts::WorkerSpec;
+
+/// Name of the worker executable.
+pub const WORKER_BINARY: &str = "texsyn-worker";
+
+/// How long a started worker gets to print its listening line.
+pub const START_TIMEOUT: Duration = Duration::from_secs(20);
+
+/// Finds `texsyn-worker`: `explicit` if given, else next to the current
+/// executable (the same target directory, also from `target/*/deps/`), else on PATH.
+pub fn find_worker_binary(explicit: Option<&Path>) -> Result<PathBuf> {
+    if let Some(p) = explicit {
+        if p.is_file() {
+            return Ok(p.to_path_buf());
+        }
+        bail!("--worker-binary {} is not a file", p.display());
+    }
+    let name = format!("{WORKER_BINARY}{}", std::env::consts::EXE_SUFFIX);
+    if let Ok(exe) = std::env::current_exe() {
+        let mut dir = exe.parent().map(Path::to_path_buf);
+        for _ in 0..2 {
+            let Some(d) = dir else { break };
+            let candidate = d.join(&name);
+            if candidate.is_file() {
+                return Ok(candidate);
+            }
+            dir = d.parent().map(Path::to_path_buf);
+        }
+    }
+    if let Some(path) = std::env::var_os("PATH") {
+        for d in std::env::split_paths(&path) {
+            let candidate = d.join(&name);
+            if candidate.is_file() {
+                return Ok(candidate);
+            }
+        }
+    }
+    bail!(
+        "cannot find {name} next to this executable or on PATH; build it (cargo build --release) or give --worker-binary PATH"
+    )
+}
+
+/// A fresh random token (32 hex digits from the thread-local CSPRNG).
+pub fn new_token() -> String {
+    use rand::Rng;
+    let bytes: [u8; 16] = rand::rng().random();
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Writes `token` to `path`, readable by the owner only.
+pub fn write_token_file(path: &Path, token: &str) -> Result<()> {
+    let mut opts = std::fs::OpenOptions::new();
+    opts.write(true).create_new(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        opts.mode(0o600);
+    }
+    let mut f = opts
+        .open(path)
+        .with_context(|| format!("cannot create the token file {}", path.display()))?;
+    std::io::Write::write_all(&mut f, token.as_bytes())
+        .with_context(|| format!("cannot write the token file {}", path.display()))?;
+    Ok(())
+}
+
+/// One started worker process.
+#[derive(Debug)]
+pub struct WorkerProcess {
+    pub address: SocketAddr,
+    pub child: Child,
+    /// Where its stderr goes.
+    pub log: PathBuf,
+}
+
+impl WorkerProcess {
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// Kills the process (SIGKILL) and reaps it; harmless when it already exited.
+    pub fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for WorkerProcess {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// The last `max` bytes of a log file, for error messages.
+fn log_tail(path: &Path, max: u64) -> String {
+    let Ok(mut f) = std::fs::File::open(path) else {
+        return String::new();
+    };
+    let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+    let _ = f.seek(std::io::SeekFrom::Start(len.saturating_sub(max)));
+    let mut s = String::new();
+    let _ = f.read_to_string(&mut s);
+    s.trim().to_string()
+}
+
+/// Starts `binary serve --listen IP:0 ARGS...` with stderr to `log` and waits
+/// for its `listening on ADDR` line. The process is killed if it does not
+/// come up.
+pub fn spawn_worker(
+    binary: &Path,
+    ip: Ipv4Addr,
+    args: &[OsString],
+    log: &Path,
+) -> Result<WorkerProcess> {
+    let log_file = std::fs::File::create(log)
+        .with_context(|| format!("cannot create the worker log {}", log.display()))?;
+    let mut cmd = Command::new(binary);
+    cmd.arg("serve")
+        .arg("--listen")
+        .arg(format!("{ip}:0"))
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::from(log_file));
+    if std::env::var_os("RUST_LOG").is_none() {
+        cmd.env("RUST_LOG", "warn");
+    }
+    let mut child = cmd
+        .spawn()
+        .with_context(|| format!("cannot start {}", binary.display()))?;
+    let stdout = child.stdout.take().context("worker stdout")?;
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::Builder::new()
+        .name("texsyn-worker-stdout".into())
+        .spawn(move || {
+            let mut lines = BufReader::new(stdout).lines();
+            let first = lines.next();
+            let _ = tx.send(first);
+            // Keep draining so the worker never blocks on a full pipe.
+            for _ in lines {}
+        })
+        .context("cannot start a thread")?;
+    let mut process = WorkerProcess {
+        address: SocketAddr::from(([0, 0, 0, 0], 0)),
+        child,
+        log: log.to_path_buf(),
+    };
+    let line = match rx.recv_timeout(START_TIMEOUT) {
+        Ok(Some(Ok(line))) => line,
+        Ok(_) | Err(_) => {
+            process.kill();
+            bail!(
+                "the worker {} on {ip} did not print its listening line within {:?}: {}",
+                binary.display(),
+                START_TIMEOUT,
+                log_tail(log, 2000)
+            );
+        }
+    };
+    match parse_listening_line(&line) {
+        Some(a) => process.address = a,
+        None => {
+            process.kill();
+            bail!("the worker printed '{line}' instead of 'listening on ADDR'");
+        }
+    }
+    Ok(process)
+}
+
+/// `--local-workers N`: N worker processes on 127.0.0.1..=127.0.0.N sharing a
+/// fresh token. Dropping this kills them and deletes the token file.
+pub struct LocalWorkers {
+    pub workers: Vec<WorkerProcess>,
+    token: String,
+    dir: tempfile::TempDir,
+}
+
+impl std::fmt::Debug for LocalWorkers {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LocalWorkers")
+            .field("workers", &self.workers)
+            .field("token", &"<redacted>")
+            .finish()
+    }
+}
+
+impl LocalWorkers {
+    /// Starts `n` workers (1..=254) with `threads` search threads each (default:
+    /// the cores divided among them) and any `extra` worker arguments.
+    pub fn spawn(
+        binary: &Path,
+        n: usize,
+        threads: Option<usize>,
+        extra: &[OsString],
+    ) -> Result<Self> {
+        if n == 0 || n > 254 {
+            bail!("--local-workers {n} must be in 1..=254");
+        }
+        let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+        let threads = threads.unwrap_or((cores / n).max(1));
+        let dir = tempfile::Builder::new()
+            .prefix("texsyn-local-workers-")
+            .tempdir()
+            .context("cannot create a directory for the local workers' token")?;
+        let token = new_token();
+        let token_path = dir.path().join("token");
+        write_token_file(&token_path, &token)?;
+        let mut workers = Vec::with_capacity(n);
+        for k in 0..n {
+            let ip = Ipv4Addr::new(127, 0, 0, (k + 1) as u8);
+            let mut args: Vec<OsString> = vec![
+                "--threads".into(),
+                threads.to_string().into(),
+                "--token-file".into(),
+                token_path.clone().into(),
+            ];
+            args.extend(extra.iter().cloned());
+            let log = dir.path().join(format!("worker-{}.log", k + 1));
+            // On error the workers started so far are killed by their Drop.
+            let w = spawn_worker(binary, ip, &args, &log)?;
+            tracing::info!(address = %w.address, pid = w.pid(), threads, "local worker started");
+            workers.push(w);
+        }
+        Ok(Self {
+            workers,
+            token,
+            dir,
+        })
+    }
+
+    /// The workers as the master addresses them (with the shared token).
+    pub fn specs(&self) -> Vec<WorkerSpec> {
+        self.workers
+            .iter()
+            .map(|w| WorkerSpec::new(w.address.to_string(), Some(self.token.clone())))
+            .collect()
+    }
+
+    pub fn token(&self) -> &str {
+        &self.token
+    }
+
+    /// Directory of the token file and the worker logs (deleted on drop).
+    pub fn dir(&self) -> &Path {
+        self.dir.path()
+    }
+
+    /// Kills every worker now.
+    pub fn stop(&mut self) {
+        for w in &mut self.workers {
+            w.kill();
+        }
+    }
+}
+
+impl Drop for LocalWorkers {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tokens_are_fresh_hex() {
+        let (a, b) = (new_token(), new_token());
+        assert_eq!(a.len(), 32);
+        assert!(a.bytes().all(|c| c.is_ascii_hexdigit()));
+        assert_ne!(a, b);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn token_file_is_private() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t");
+        write_token_file(&p, "abc").unwrap();
+        let mode = std::fs::metadata(&p).unwrap().permissions().mode();
+        assert_eq!(mode & 0o777, 0o600);
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), "abc");
+        assert!(write_token_file(&p, "again").is_err(), "never overwrites");
+    }
+
+    #[test]
+    fn missing_explicit_binary_is_an_error() {
+        assert!(find_worker_binary(Some(Path::new("/nonexistent/texsyn-worker"))).is_err());
+    }
+}

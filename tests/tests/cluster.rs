@@ -1,0 +1,705 @@
+//! The search cluster with real `texsyn-worker` processes on 127.0.0.x
+//! (DESIGN §3.5, §4): the output is bit-identical to the local engine with 1,
+//! 2 and 3 workers, with unequal worker speeds, when a worker is killed or
+//! stopped mid-level, and when every worker is gone; bad calls are rejected
+//! with the right status and the worker keeps serving.
+
+mod harness;
+
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+use harness::{sigcont, sigkill, sigstop, texture_path, Token, Worker};
+use serde_json::Value;
+use texsyn::cluster::{ClusterOptions, ClusterSearch, WorkerSpec};
+use texsyn::imaging::{self, ColorImage};
+use texsyn::search::{LevelData, LocalSearch, Plan, PlannedSearch, SearchBackend, Strategy};
+use texsyn::synth::Silent;
+use texsyn::{synthesize, Config, Mode, Output, SynthMethod};
+use texsyn_proto::v1 as pb;
+use texsyn_proto::PROTOCOL_VERSION;
+use texsyn_worker::service::BearerAuth;
+use texsyn_worker::{Engine, Hit, QueryBatch};
+
+const LEVELS: usize = 3;
+
+fn sample() -> &'static ColorImage {
+    static S: OnceLock<ColorImage> = OnceLock::new();
+    S.get_or_init(|| imaging::load_color(&texture_path("brick_color_96.png")).unwrap())
+}
+
+fn config() -> Config {
+    Config {
+        block: 3,
+        neighbourhood: 9,
+        levels: LEVELS,
+        batch: 16,
+        seed: 5,
+        ..Config::default()
+    }
+}
+
+fn mode() -> Mode {
+    Mode::Synth {
+        width: 128,
+        height: 128,
+        method: SynthMethod::Grow,
+    }
+}
+
+fn pool() -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap()
+}
+
+/// Image bytes and copy map of the local engine: the truth every cluster run must equal.
+fn reference() -> &'static (Vec<u8>, Vec<[u32; 2]>) {
+    static R: OnceLock<(Vec<u8>, Vec<[u32; 2]>)> = OnceLock::new();
+    R.get_or_init(|| {
+        let mut backend = PlannedSearch::new(
+            Plan::Levels(vec![Strategy::Local; LEVELS]),
+            LocalSearch::new(Engine::default()),
+        );
+        let out = pool()
+            .install(|| synthesize(sample(), &mode(), &config(), &mut backend, &Silent))
+            .unwrap();
+        (out.image.rgb, out.copy_map)
+    })
+}
+
+/// Options for tests: short control-call timeouts, a 2 s batch deadline floor.
+fn options(workers: Vec<WorkerSpec>) -> ClusterOptions {
+    ClusterOptions {
+        workers,
+        deadline_floor: Duration::from_secs(2),
+        call_timeout: Duration::from_secs(5),
+        connect_timeout: Duration::from_secs(2),
+        ..ClusterOptions::default()
+    }
+}
+
+/// Runs the synthesis with every level on `cluster`.
+fn run(cluster: Box<dyn SearchBackend>) -> anyhow::Result<Output> {
+    let mut backend = PlannedSearch::new(
+        Plan::Levels(vec![Strategy::Cluster; LEVELS]),
+        LocalSearch::new(Engine::default()),
+    )
+    .with_cluster(cluster);
+    pool().install(|| synthesize(sample(), &mode(), &config(), &mut backend, &Silent))
+}
+
+fn assert_same_as_local(out: &Output, what: &str) {
+    let (rgb, copy) = reference();
+    assert!(out.image.rgb == *rgb, "{what}: image differs from the local engine");
+    assert!(out.copy_map == *copy, "{what}: copy map differs from the local engine");
+}
+
+fn cluster_stats(out: &Output) -> &Value {
+    &out.report.search_stats["cluster"]
+}
+
+fn events<'a>(stats: &'a Value, kind: &str) -> Vec<&'a Value> {
+    stats["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["kind"] == kind)
+        .collect()
+}
+
+fn worker_stats<'a>(stats: &'a Value, address: &str) -> &'a Value {
+    stats["workers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|w| w["address"] == address)
+        .unwrap_or_else(|| panic!("no stats for {address}: {stats:#}"))
+}
+
+/// What the fault hooks see.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Point {
+    /// Before the level is loaded.
+    Level(usize),
+    /// Before search call `n` (from 0) of a level.
+    Search(usize, usize),
+}
+
+type Hook = Box<dyn FnMut(Point) + Send>;
+
+/// A cluster backend with a hook before each level and each search, and the
+/// duration of every search call.
+struct Hooked {
+    inner: ClusterSearch,
+    hook: Hook,
+    level: usize,
+    call: usize,
+    durations: Arc<Mutex<Vec<(Point, Duration)>>>,
+}
+
+impl Hooked {
+    fn new(inner: ClusterSearch, hook: Hook) -> (Self, Arc<Mutex<Vec<(Point, Duration)>>>) {
+        let durations = Arc::new(Mutex::new(Vec::new()));
+        (
+            Self {
+                inner,
+                hook,
+                level: 0,
+                call: 0,
+                durations: durations.clone(),
+            },
+            durations,
+        )
+    }
+}
+
+impl SearchBackend for Hooked {
+    fn name(&self) -> String {
+        self.inner.name()
+    }
+
+    fn load_level(&mut self, level: &LevelData) -> anyhow::Result<()> {
+        (self.hook)(Point::Level(level.level));
+        self.level = level.level;
+        self.call = 0;
+        self.inner.load_level(level)
+    }
+
+    fn search(&mut self, queries: &QueryBatch) -> anyhow::Result<Vec<Hit>> {
+        let p = Point::Search(self.level, self.call);
+        (self.hook)(p);
+        self.call += 1;
+        let t = Instant::now();
+        let r = self.inner.search(queries);
+        self.durations.lock().unwrap().push((p, t.elapsed()));
+        r
+    }
+
+    fn end_level(&mut self) {
+        self.inner.end_level();
+    }
+
+    fn stats(&self) -> Value {
+        self.inner.stats()
+    }
+}
+
+fn connect(opts: ClusterOptions) -> ClusterSearch {
+    ClusterSearch::connect(opts, Engine::default()).unwrap()
+}
+
+#[test]
+fn one_two_and_three_workers_match_the_local_engine() {
+    let token = Token::new();
+    let workers: Vec<Worker> = (1..=3).map(|k| Worker::with_token(k, &token, 1)).collect();
+    for n in 1..=3 {
+        let specs = workers[..n].iter().map(|w| w.spec(Some(&token))).collect();
+        let out = run(Box::new(connect(options(specs)))).unwrap();
+        assert_same_as_local(&out, &format!("{n} worker(s)"));
+        let stats = cluster_stats(&out);
+        for w in &workers[..n] {
+            let s = worker_stats(stats, &w.address.to_string());
+            assert!(s["queries"].as_u64().unwrap() > 0, "{n} workers: {s:#}");
+            assert_eq!(s["state"], "active");
+            assert!(s["share"].as_f64().unwrap() > 0.0);
+        }
+        assert!(events(stats, "partition").len() == LEVELS, "{stats:#}");
+        assert!(stats["local_fallback_levels"].as_array().unwrap().is_empty());
+    }
+}
+
+#[test]
+fn unequal_worker_speeds_match_the_local_engine() {
+    let token = Token::new();
+    let one = Worker::with_token(4, &token, 1);
+    let two = Worker::with_token(5, &token, 2);
+    let bursty = Worker::with_token(6, &token, 1);
+    // The third worker runs in bursts: stopped 15 ms out of every 25 ms.
+    let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let pid = bursty.pid();
+    let toggler = {
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                sigstop(pid);
+                std::thread::sleep(Duration::from_millis(15));
+                sigcont(pid);
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            sigcont(pid);
+        })
+    };
+    let specs = [&one, &two, &bursty]
+        .iter()
+        .map(|w| w.spec(Some(&token)))
+        .collect();
+    let out = run(Box::new(connect(options(specs))));
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    toggler.join().unwrap();
+    let out = out.unwrap();
+    assert_same_as_local(&out, "unequal speeds");
+    let stats = cluster_stats(&out);
+    for w in [&one, &two] {
+        let s = worker_stats(stats, &w.address.to_string());
+        assert!(s["queries"].as_u64().unwrap() > 0, "{s:#}");
+    }
+}
+
+#[test]
+fn worker_killed_mid_level_output_unchanged() {
+    let token = Token::new();
+    let a = Worker::with_token(7, &token, 1);
+    let b = Worker::with_token(8, &token, 1);
+    let victim = b.pid();
+    let hook: Hook = Box::new(move |p| {
+        if p == Point::Search(1, 2) {
+            sigkill(victim);
+        }
+    });
+    let (backend, _) = Hooked::new(
+        connect(options(vec![a.spec(Some(&token)), b.spec(Some(&token))])),
+        hook,
+    );
+    let out = run(Box::new(backend)).unwrap();
+    assert_same_as_local(&out, "worker killed");
+    let stats = cluster_stats(&out);
+    let baddr = b.address.to_string();
+    let drops = events(stats, "drop");
+    assert!(
+        drops
+            .iter()
+            .any(|e| e["worker"] == baddr.as_str() && e["level"] == 1),
+        "the report names the drop: {stats:#}"
+    );
+    let rep = events(stats, "repartition");
+    let r = rep
+        .iter()
+        .find(|e| e["level"] == 1)
+        .unwrap_or_else(|| panic!("the report names the repartition: {stats:#}"));
+    assert!(r["reason"].as_str().unwrap().contains(&baddr), "{r:#}");
+    let shares = r["shares"].as_array().unwrap();
+    assert_eq!(shares.len(), 1, "{r:#}");
+    assert_eq!(shares[0]["worker"], a.address.to_string().as_str());
+    assert_eq!(shares[0]["share"], 1.0);
+    assert_eq!(worker_stats(stats, &baddr)["state"], "dropped");
+}
+
+#[test]
+fn worker_stopped_mid_level_is_dropped_by_deadline_and_taken_back_later() {
+    let token = Token::new();
+    let a = Worker::with_token(9, &token, 1);
+    let b = Worker::with_token(10, &token, 1);
+    let pid = b.pid();
+    let hook: Hook = Box::new(move |p| match p {
+        Point::Search(2, 1) => sigstop(pid),
+        // Back before the next level: the master takes it in again there.
+        Point::Level(1) => sigcont(pid),
+        _ => {}
+    });
+    let floor = Duration::from_millis(500);
+    let (backend, durations) = Hooked::new(
+        connect(ClusterOptions {
+            deadline_floor: floor,
+            ..options(vec![a.spec(Some(&token)), b.spec(Some(&token))])
+        }),
+        hook,
+    );
+    let out = run(Box::new(backend));
+    sigcont(pid);
+    let out = out.unwrap();
+    assert_same_as_local(&out, "worker stopped");
+    let took = durations
+        .lock()
+        .unwrap()
+        .iter()
+        .find(|(p, _)| *p == Point::Search(2, 1))
+        .map(|(_, d)| *d)
+        .unwrap();
+    assert!(
+        took >= floor && took < floor + Duration::from_millis(2500),
+        "the stopped worker is detected by its deadline ({floor:?} + expected time), not waited for: {took:?}"
+    );
+    let stats = cluster_stats(&out);
+    let baddr = b.address.to_string();
+    let drop = events(stats, "drop")
+        .into_iter()
+        .find(|e| e["worker"] == baddr.as_str())
+        .unwrap_or_else(|| panic!("no drop event: {stats:#}"));
+    assert_eq!(drop["level"], 2);
+    assert!(
+        drop["reason"].as_str().unwrap().contains("deadline"),
+        "{drop:#}"
+    );
+    let rejoin = events(stats, "rejoin")
+        .into_iter()
+        .find(|e| e["worker"] == baddr.as_str())
+        .unwrap_or_else(|| panic!("no rejoin event: {stats:#}"));
+    assert_eq!(rejoin["level"], 1);
+    let s = worker_stats(stats, &baddr);
+    assert_eq!(s["state"], "active", "{s:#}");
+    // Level 0 was searched by both again.
+    let last = events(stats, "partition")
+        .into_iter()
+        .find(|e| e["level"] == 0)
+        .unwrap();
+    assert_eq!(last["shares"].as_array().unwrap().len(), 2, "{last:#}");
+}
+
+#[test]
+fn worker_much_slower_than_its_calibration_triggers_recalibration_and_repartition() {
+    let token = Token::new();
+    let a = Worker::with_token(17, &token, 1);
+    let b = Worker::with_token(18, &token, 1);
+    let pid = b.pid();
+    // Three batches in a row, the second worker is held for 150 ms: slow, not dead.
+    let hook: Hook = Box::new(move |p| {
+        if let Point::Search(0, 2..=4) = p {
+            sigstop(pid);
+            std::thread::spawn(move || {
+                std::thread::sleep(Duration::from_millis(150));
+                sigcont(pid);
+            });
+        }
+    });
+    let (backend, _) = Hooked::new(
+        connect(ClusterOptions {
+            slow_strikes: 3,
+            recalibrate_cooldown: 0,
+            ..options(vec![a.spec(Some(&token)), b.spec(Some(&token))])
+        }),
+        hook,
+    );
+    let out = run(Box::new(backend)).unwrap();
+    sigcont(pid);
+    assert_same_as_local(&out, "slow worker");
+    let stats = cluster_stats(&out);
+    let baddr = b.address.to_string();
+    let recal = events(stats, "recalibrate");
+    assert!(
+        recal.iter().any(|e| e["level"] == 0
+            && e["reason"].as_str().unwrap().contains(&baddr)),
+        "{stats:#}"
+    );
+    assert!(
+        events(stats, "repartition").iter().any(|e| e["level"] == 0
+            && e["reason"].as_str().unwrap().starts_with("recalibrated")
+            && e["shares"].as_array().unwrap().len() == 2),
+        "{stats:#}"
+    );
+    assert!(events(stats, "drop").is_empty(), "slow is not dead: {stats:#}");
+}
+
+#[test]
+fn all_workers_killed_falls_back_to_local_search_bit_identical() {
+    let token = Token::new();
+    let a = Worker::with_token(11, &token, 1);
+    let b = Worker::with_token(12, &token, 1);
+    let pids = [a.pid(), b.pid()];
+    let hook: Hook = Box::new(move |p| {
+        if p == Point::Search(1, 1) {
+            pids.iter().for_each(|&pid| sigkill(pid));
+        }
+    });
+    let (backend, _) = Hooked::new(
+        connect(options(vec![a.spec(Some(&token)), b.spec(Some(&token))])),
+        hook,
+    );
+    let out = run(Box::new(backend)).unwrap();
+    assert_same_as_local(&out, "all workers killed");
+    let stats = cluster_stats(&out);
+    assert_eq!(stats["local_fallback_levels"], serde_json::json!([1, 0]));
+    assert!(!events(stats, "fallback").is_empty(), "{stats:#}");
+    assert_eq!(events(stats, "drop").len(), 2, "{stats:#}");
+}
+
+#[test]
+fn require_cluster_fails_cleanly_when_no_worker_is_left() {
+    let token = Token::new();
+    let a = Worker::with_token(13, &token, 1);
+    let b = Worker::with_token(14, &token, 1);
+    let pids = [a.pid(), b.pid()];
+    let hook: Hook = Box::new(move |p| {
+        if p == Point::Search(1, 1) {
+            pids.iter().for_each(|&pid| sigkill(pid));
+        }
+    });
+    let (backend, _) = Hooked::new(
+        connect(ClusterOptions {
+            require_cluster: true,
+            ..options(vec![a.spec(Some(&token)), b.spec(Some(&token))])
+        }),
+        hook,
+    );
+    let t = Instant::now();
+    let err = run(Box::new(backend)).err().expect("the run fails");
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("no search worker left") && msg.contains("--require-cluster"),
+        "{msg}"
+    );
+    assert!(t.elapsed() < Duration::from_secs(15), "{:?}", t.elapsed());
+}
+
+type RawClient =
+    pb::worker_client::WorkerClient<tonic::codegen::InterceptedService<tonic::transport::Channel, BearerAuth>>;
+
+async fn raw_client(addr: std::net::SocketAddr, token: Option<&str>) -> RawClient {
+    let ch = tonic::transport::Channel::from_shared(format!("http://{addr}"))
+        .unwrap()
+        .timeout(Duration::from_secs(10))
+        .connect()
+        .await
+        .unwrap();
+    pb::worker_client::WorkerClient::with_interceptor(ch, BearerAuth::new(token).unwrap())
+}
+
+fn info() -> pb::InfoRequest {
+    pb::InfoRequest {
+        protocol_version: PROTOCOL_VERSION,
+    }
+}
+
+fn load_request(side: u32, neighbourhood: u32) -> pb::LoadLevelRequest {
+    pb::LoadLevelRequest {
+        job_id: "bad-calls".into(),
+        level: 0,
+        geometry: Some(pb::Geometry {
+            neighbourhood,
+            parent_window: 0,
+            weight_hi: 1,
+            weight_lo: 1,
+            metric: 0,
+        }),
+        sample: Some(pb::Plane {
+            width: side,
+            height: side,
+            pixels: vec![7; (side * side) as usize],
+            defined: Vec::new(),
+        }),
+        parent: None,
+    }
+}
+
+#[test]
+fn bad_calls_are_rejected_with_the_right_status_and_the_worker_keeps_serving() {
+    let token = Token::new();
+    let path = token.path.to_str().unwrap().to_string();
+    let w = Worker::start(
+        15,
+        &["--threads", "1", "--token-file", &path, "--max-message", "64K"],
+    );
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        let good = Some(token.value.as_str());
+        let code = |r: Result<tonic::Response<pb::InfoReply>, tonic::Status>| {
+            r.map(|_| ()).map_err(|s| (s.code(), s.message().to_string()))
+        };
+        // Missing and wrong token.
+        let mut none = raw_client(w.address, None).await;
+        let e = code(none.info(info()).await).unwrap_err();
+        assert_eq!(e.0, tonic::Code::Unauthenticated, "{e:?}");
+        let mut wrong = raw_client(w.address, Some("not-the-token")).await;
+        let e = code(wrong.info(info()).await).unwrap_err();
+        assert_eq!(e.0, tonic::Code::Unauthenticated, "{e:?}");
+        let mut c = raw_client(w.address, good).await;
+        assert!(c.info(info()).await.is_ok(), "still serving after bad tokens");
+
+        // Version mismatch: refused, the message names both versions.
+        let e = code(c.info(pb::InfoRequest { protocol_version: 99 }).await).unwrap_err();
+        assert_eq!(e.0, tonic::Code::FailedPrecondition, "{e:?}");
+        assert!(
+            e.1.contains("99") && e.1.contains(&format!("version {PROTOCOL_VERSION}")),
+            "{e:?}"
+        );
+        assert!(c.info(info()).await.is_ok());
+
+        // Malformed geometry (even neighbourhood) and an over-large one.
+        for n in [4, 0, 65] {
+            let e = c.load_level(load_request(32, n)).await.unwrap_err();
+            assert_eq!(e.code(), tonic::Code::InvalidArgument, "n={n}: {e:?}");
+        }
+        // A plane whose byte count does not match its size.
+        let mut bad = load_request(32, 5);
+        bad.sample.as_mut().unwrap().pixels.pop();
+        let e = c.load_level(bad).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+
+        // Over the 64 KiB message limit.
+        let e = c.load_level(load_request(300, 5)).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::ResourceExhausted, "{e:?}");
+        let e = c
+            .calibrate(pb::CalibrateRequest {
+                seed: 1,
+                vectors: u32::MAX,
+                dims: 106,
+                queries: 1,
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+
+        // Still serving: a valid level loads.
+        let r = c.load_level(load_request(32, 5)).await.unwrap().into_inner();
+        assert_eq!(r.total_vectors, 28 * 28);
+    });
+    drop(rt);
+    assert!(harness::alive(w.pid()), "the worker survived every bad call");
+    // And a whole synthesis on it still equals the local engine.
+    let out = run(Box::new(connect(options(vec![w.spec(Some(&token))])))).unwrap();
+    assert_same_as_local(&out, "after bad calls");
+}
+
+#[test]
+fn master_refuses_wrong_token_and_version_mismatch_with_clear_errors() {
+    let token = Token::new();
+    let w = Worker::with_token(16, &token, 1);
+    let strict = |spec: WorkerSpec| ClusterOptions {
+        require_cluster: true,
+        ..options(vec![spec])
+    };
+    let err = |o: ClusterOptions| {
+        format!(
+            "{:#}",
+            ClusterSearch::connect(o, Engine::default())
+                .err()
+                .expect("refused")
+        )
+    };
+    let e = err(strict(WorkerSpec::new(w.address.to_string(), None)));
+    assert!(e.contains("Unauthenticated") && e.contains("missing"), "{e}");
+    let e = err(strict(WorkerSpec::new(
+        w.address.to_string(),
+        Some("wrong".into()),
+    )));
+    assert!(e.contains("Unauthenticated") && e.contains("wrong token"), "{e}");
+    let e = err(ClusterOptions {
+        protocol_version: PROTOCOL_VERSION + 1,
+        ..strict(w.spec(Some(&token)))
+    });
+    assert!(
+        e.contains(&format!("version {}", PROTOCOL_VERSION + 1))
+            && e.contains(&format!("version {PROTOCOL_VERSION}")),
+        "{e}"
+    );
+    // Without --require-cluster the run goes on locally, and says so in the report.
+    let c = ClusterSearch::connect(
+        options(vec![WorkerSpec::new(w.address.to_string(), None)]),
+        Engine::default(),
+    )
+    .unwrap();
+    assert_eq!(c.active_workers(), 0);
+    let out = run(Box::new(c)).unwrap();
+    assert_same_as_local(&out, "no usable worker");
+    let stats = cluster_stats(&out);
+    assert_eq!(stats["local_fallback_levels"], serde_json::json!([2, 1, 0]));
+    // The worker kept serving the right token throughout.
+    let c = connect(options(vec![w.spec(Some(&token))]));
+    assert_eq!(c.active_workers(), 1);
+}
+
+#[test]
+fn tls_cluster_matches_the_local_engine() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cert, key) = (dir.path().join("cert.pem"), dir.path().join("key.pem"));
+    let made = std::process::Command::new("openssl")
+        .args(["req", "-x509", "-newkey", "ec", "-pkeyopt"])
+        .args(["ec_paramgen_curve:prime256v1", "-nodes", "-days", "1"])
+        .args(["-subj", "/CN=localhost", "-addext", "subjectAltName=DNS:localhost"])
+        .args(["-addext", "basicConstraints=critical,CA:FALSE", "-keyout"])
+        .arg(&key)
+        .arg("-out")
+        .arg(&cert)
+        .output();
+    if !made.as_ref().is_ok_and(|o| o.status.success()) {
+        eprintln!("skipped: openssl could not make a test certificate");
+        return;
+    }
+    let token = Token::new();
+    let w = Worker::start(
+        1,
+        &[
+            "--threads",
+            "1",
+            "--token-file",
+            token.path.to_str().unwrap(),
+            "--tls-cert",
+            cert.to_str().unwrap(),
+            "--tls-key",
+            key.to_str().unwrap(),
+        ],
+    );
+    let spec = WorkerSpec::new(
+        format!("localhost:{}", w.address.port()),
+        Some(token.value.clone()),
+    );
+    let c = connect(ClusterOptions {
+        tls_ca: Some(std::fs::read(&cert).unwrap()),
+        require_cluster: true,
+        ..options(vec![spec.clone()])
+    });
+    let out = run(Box::new(c)).unwrap();
+    assert_same_as_local(&out, "TLS");
+    // Plain text to the TLS worker is refused.
+    let e = ClusterSearch::connect(
+        ClusterOptions {
+            require_cluster: true,
+            ..options(vec![spec])
+        },
+        Engine::default(),
+    );
+    assert!(e.is_err());
+}
+
+#[test]
+fn cli_local_workers_match_local_search_and_are_stopped_afterwards() {
+    let dir = tempfile::tempdir().unwrap();
+    let texsyn = harness::binary("texsyn");
+    let sample = texture_path("brick_color_96.png");
+    let common = |out: &str| {
+        let mut c = std::process::Command::new(&texsyn);
+        c.arg("synth")
+            .arg(&sample)
+            .args(["--size", "96x96", "--levels", "3", "--seed", "3", "-q", "-o"])
+            .arg(dir.path().join(out));
+        c
+    };
+    let local = common("local.png")
+        .args(["--search", "local,local,local"])
+        .output()
+        .unwrap();
+    assert!(local.status.success(), "{}", String::from_utf8_lossy(&local.stderr));
+    let report = dir.path().join("report.json");
+    let cluster = common("cluster.png")
+        .args(["--search", "cluster,cluster,cluster", "--local-workers", "2"])
+        .args(["--require-cluster", "--report"])
+        .arg(&report)
+        .output()
+        .unwrap();
+    assert!(
+        cluster.status.success(),
+        "{}",
+        String::from_utf8_lossy(&cluster.stderr)
+    );
+    let a = std::fs::read(dir.path().join("local.png")).unwrap();
+    let b = std::fs::read(dir.path().join("cluster.png")).unwrap();
+    assert!(a == b, "--local-workers output differs from local search");
+    let r: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let workers = r["search_stats"]["cluster"]["workers"].as_array().unwrap();
+    assert_eq!(workers.len(), 2);
+    for w in workers {
+        assert!(w["queries"].as_u64().unwrap() > 0, "{w:#}");
+        // The worker process is gone: nothing listens on its port any more.
+        let addr: std::net::SocketAddr = w["address"].as_str().unwrap().parse().unwrap();
+        assert!(
+            std::net::TcpStream::connect_timeout(&addr, Duration::from_secs(1)).is_err(),
+            "local worker {addr} still listening after the run"
+        );
+    }
+    // Cluster flags without workers are refused with a message naming both.
+    let bad = common("x.png").arg("--require-cluster").output().unwrap();
+    assert!(!bad.status.success());
+    let msg = String::from_utf8_lossy(&bad.stderr);
+    assert!(msg.contains("--require-cluster") && msg.contains("--workers"), "{msg}");
+}

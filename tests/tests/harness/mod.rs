@@ -1,0 +1,169 @@
+//! A small harness for multi-process tests: real `texsyn-worker` processes on
+//! 127.0.0.x with port 0 (the real port is read from their `listening on ADDR`
+//! line), a shared token in a 0600 file, signals (SIGKILL, SIGSTOP, SIGCONT),
+//! and every process killed when its handle is dropped.
+#![allow(dead_code)]
+
+use std::ffi::OsString;
+use std::net::{Ipv4Addr, SocketAddr};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use texsyn::cluster::local::{new_token, spawn_worker, write_token_file, WorkerProcess};
+use texsyn::cluster::WorkerSpec;
+
+/// `target/<profile>/`, the parent of this test executable's `deps/`.
+pub fn target_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    exe.parent()
+        .and_then(Path::parent)
+        .expect("test executable in target/<profile>/deps")
+        .to_path_buf()
+}
+
+/// `target/<profile>/NAME`, built with cargo if it is missing (a
+/// `cargo test --workspace` builds both binaries before any test runs).
+pub fn binary(name: &str) -> PathBuf {
+    static BUILT: OnceLock<()> = OnceLock::new();
+    let p = target_dir().join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
+    if !p.is_file() {
+        BUILT.get_or_init(|| {
+            let release = target_dir().file_name().is_some_and(|n| n == "release");
+            let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+            let mut cmd = std::process::Command::new(cargo);
+            cmd.args(["build", "-p", "texsyn", "-p", "texsyn-worker"]);
+            if release {
+                cmd.arg("--release");
+            }
+            let status = cmd.status().expect("run cargo build");
+            assert!(status.success(), "cargo build of the binaries failed");
+        });
+    }
+    assert!(p.is_file(), "{} is not built", p.display());
+    p
+}
+
+/// A token file shared by the workers and the master of one test.
+pub struct Token {
+    pub value: String,
+    pub path: PathBuf,
+    pub dir: tempfile::TempDir,
+}
+
+impl Token {
+    pub fn new() -> Self {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let value = new_token();
+        let path = dir.path().join("token");
+        write_token_file(&path, &value).expect("token file");
+        Self { value, path, dir }
+    }
+}
+
+/// One worker process on 127.0.0.`host`.
+pub struct Worker {
+    pub process: WorkerProcess,
+    pub address: SocketAddr,
+    _logs: tempfile::TempDir,
+}
+
+impl Worker {
+    /// Starts `texsyn-worker serve --listen 127.0.0.HOST:0 ARGS...`.
+    pub fn start(host: u8, args: &[&str]) -> Self {
+        let logs = tempfile::tempdir().expect("temp dir");
+        let args: Vec<OsString> = args.iter().map(OsString::from).collect();
+        let process = spawn_worker(
+            &binary("texsyn-worker"),
+            Ipv4Addr::new(127, 0, 0, host),
+            &args,
+            &logs.path().join("worker.log"),
+        )
+        .expect("worker starts");
+        let address = process.address;
+        Self {
+            process,
+            address,
+            _logs: logs,
+        }
+    }
+
+    /// Starts a worker that requires `token`, with `threads` search threads.
+    pub fn with_token(host: u8, token: &Token, threads: usize) -> Self {
+        let t = threads.to_string();
+        let path = token.path.to_str().expect("utf-8 temp path").to_string();
+        Self::start(host, &["--threads", &t, "--token-file", &path])
+    }
+
+    pub fn spec(&self, token: Option<&Token>) -> WorkerSpec {
+        WorkerSpec::new(self.address.to_string(), token.map(|t| t.value.clone()))
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.process.pid()
+    }
+
+    pub fn log(&self) -> String {
+        std::fs::read_to_string(&self.process.log).unwrap_or_default()
+    }
+}
+
+/// Sends `sig` to `pid` (ignores a process that is already gone).
+pub fn signal(pid: u32, sig: libc::c_int) {
+    // SAFETY: kill(2) with a pid of a child this test started; no memory is shared.
+    unsafe {
+        libc::kill(pid as libc::pid_t, sig);
+    }
+}
+
+pub fn sigkill(pid: u32) {
+    signal(pid, libc::SIGKILL);
+}
+
+/// Stops the process and waits (up to 2 s) until every thread of it is stopped:
+/// SIGSTOP takes effect asynchronously, and a worker could otherwise still
+/// answer a batch sent right after the signal.
+pub fn sigstop(pid: u32) {
+    signal(pid, libc::SIGSTOP);
+    let t = std::time::Instant::now();
+    while t.elapsed() < std::time::Duration::from_secs(2) && !stopped(pid) {
+        std::thread::sleep(std::time::Duration::from_micros(200));
+    }
+}
+
+/// Every thread of `pid` is in the stopped state (T).
+pub fn stopped(pid: u32) -> bool {
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
+        return false;
+    };
+    tasks.flatten().all(|t| {
+        std::fs::read_to_string(t.path().join("stat"))
+            .ok()
+            .and_then(|s| {
+                s.rsplit_once(')')
+                    .and_then(|(_, rest)| rest.split_whitespace().next().map(str::to_string))
+            })
+            .is_some_and(|state| state == "T" || state == "t")
+    })
+}
+
+pub fn sigcont(pid: u32) {
+    signal(pid, libc::SIGCONT);
+}
+
+/// True while the process exists and is not a zombie.
+pub fn alive(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .map(|s| {
+            s.rsplit_once(')')
+                .and_then(|(_, rest)| rest.split_whitespace().next())
+                .is_some_and(|state| state != "Z" && state != "X")
+        })
+        .unwrap_or(false)
+}
+
+/// `assets/textures/NAME`.
+pub fn texture_path(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../assets/textures")
+        .join(name)
+}
