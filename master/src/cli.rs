@@ -186,7 +186,7 @@ pub struct BenchArgs {
     /// Batch size K.
     #[arg(long, default_value_t = 64)]
     pub batch: usize,
-    /// Repetitions of configuration (a), or rounds of bench cluster; the best is reported.
+    /// Repetitions of configuration (a), or rounds of bench cluster, or of the end-to-end (b) run of bench lbg; the best is reported.
     #[arg(long, default_value_t = 5)]
     pub reps: usize,
     /// Search threads (default: all cores).

@@ -92,8 +92,14 @@ fn run(cluster: Box<dyn SearchBackend>) -> anyhow::Result<Output> {
 
 fn assert_same_as_local(out: &Output, what: &str) {
     let (rgb, copy) = reference();
-    assert!(out.image.rgb == *rgb, "{what}: image differs from the local engine");
-    assert!(out.copy_map == *copy, "{what}: copy map differs from the local engine");
+    assert!(
+        out.image.rgb == *rgb,
+        "{what}: image differs from the local engine"
+    );
+    assert!(
+        out.copy_map == *copy,
+        "{what}: copy map differs from the local engine"
+    );
 }
 
 fn cluster_stats(out: &Output) -> &Value {
@@ -128,6 +134,8 @@ enum Point {
 }
 
 type Hook = Box<dyn FnMut(Point) + Send>;
+/// Duration of every search call, with the point it was made at.
+type Durations = Arc<Mutex<Vec<(Point, Duration)>>>;
 
 /// A cluster backend with a hook before each level and each search, and the
 /// duration of every search call.
@@ -136,11 +144,11 @@ struct Hooked {
     hook: Hook,
     level: usize,
     call: usize,
-    durations: Arc<Mutex<Vec<(Point, Duration)>>>,
+    durations: Durations,
 }
 
 impl Hooked {
-    fn new(inner: ClusterSearch, hook: Hook) -> (Self, Arc<Mutex<Vec<(Point, Duration)>>>) {
+    fn new(inner: ClusterSearch, hook: Hook) -> (Self, Durations) {
         let durations = Arc::new(Mutex::new(Vec::new()));
         (
             Self {
@@ -206,8 +214,38 @@ fn one_two_and_three_workers_match_the_local_engine() {
             assert!(s["share"].as_f64().unwrap() > 0.0);
         }
         assert!(events(stats, "partition").len() == LEVELS, "{stats:#}");
-        assert!(stats["local_fallback_levels"].as_array().unwrap().is_empty());
+        assert!(stats["local_fallback_levels"]
+            .as_array()
+            .unwrap()
+            .is_empty());
     }
+}
+
+#[test]
+fn master_share_matches_the_local_engine() {
+    let token = Token::new();
+    let w = Worker::with_token(19, &token, 1);
+    let out = run(Box::new(connect(ClusterOptions {
+        master_share: true,
+        ..options(vec![w.spec(Some(&token))])
+    })))
+    .unwrap();
+    assert_same_as_local(&out, "master share");
+    let stats = cluster_stats(&out);
+    assert!(
+        stats["master"]["queries"].as_u64().unwrap() > 0,
+        "{stats:#}"
+    );
+    assert!(
+        worker_stats(stats, &w.address.to_string())["queries"]
+            .as_u64()
+            .unwrap()
+            > 0
+    );
+    let p = &events(stats, "partition")[0];
+    let shares = p["shares"].as_array().unwrap();
+    assert_eq!(shares.len(), 2, "{p:#}");
+    assert_eq!(shares[1]["worker"], "master");
 }
 
 #[test]
@@ -276,9 +314,8 @@ fn worker_killed_mid_level_output_unchanged() {
     let rep = events(stats, "repartition");
     let r = rep
         .iter()
-        .find(|e| e["level"] == 1)
+        .find(|e| e["level"] == 1 && e["reason"].as_str().unwrap().contains(&baddr))
         .unwrap_or_else(|| panic!("the report names the repartition: {stats:#}"));
-    assert!(r["reason"].as_str().unwrap().contains(&baddr), "{r:#}");
     let shares = r["shares"].as_array().unwrap();
     assert_eq!(shares.len(), 1, "{r:#}");
     assert_eq!(shares[0]["worker"], a.address.to_string().as_str());
@@ -378,8 +415,9 @@ fn worker_much_slower_than_its_calibration_triggers_recalibration_and_repartitio
     let baddr = b.address.to_string();
     let recal = events(stats, "recalibrate");
     assert!(
-        recal.iter().any(|e| e["level"] == 0
-            && e["reason"].as_str().unwrap().contains(&baddr)),
+        recal
+            .iter()
+            .any(|e| e["level"] == 0 && e["reason"].as_str().unwrap().contains(&baddr)),
         "{stats:#}"
     );
     assert!(
@@ -388,7 +426,10 @@ fn worker_much_slower_than_its_calibration_triggers_recalibration_and_repartitio
             && e["shares"].as_array().unwrap().len() == 2),
         "{stats:#}"
     );
-    assert!(events(stats, "drop").is_empty(), "slow is not dead: {stats:#}");
+    assert!(
+        events(stats, "drop").is_empty(),
+        "slow is not dead: {stats:#}"
+    );
 }
 
 #[test]
@@ -442,8 +483,9 @@ fn require_cluster_fails_cleanly_when_no_worker_is_left() {
     assert!(t.elapsed() < Duration::from_secs(15), "{:?}", t.elapsed());
 }
 
-type RawClient =
-    pb::worker_client::WorkerClient<tonic::codegen::InterceptedService<tonic::transport::Channel, BearerAuth>>;
+type RawClient = pb::worker_client::WorkerClient<
+    tonic::codegen::InterceptedService<tonic::transport::Channel, BearerAuth>,
+>;
 
 async fn raw_client(addr: std::net::SocketAddr, token: Option<&str>) -> RawClient {
     let ch = tonic::transport::Channel::from_shared(format!("http://{addr}"))
@@ -488,13 +530,21 @@ fn bad_calls_are_rejected_with_the_right_status_and_the_worker_keeps_serving() {
     let path = token.path.to_str().unwrap().to_string();
     let w = Worker::start(
         15,
-        &["--threads", "1", "--token-file", &path, "--max-message", "64K"],
+        &[
+            "--threads",
+            "1",
+            "--token-file",
+            &path,
+            "--max-message",
+            "64K",
+        ],
     );
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
         let good = Some(token.value.as_str());
         let code = |r: Result<tonic::Response<pb::InfoReply>, tonic::Status>| {
-            r.map(|_| ()).map_err(|s| (s.code(), s.message().to_string()))
+            r.map(|_| ())
+                .map_err(|s| (s.code(), s.message().to_string()))
         };
         // Missing and wrong token.
         let mut none = raw_client(w.address, None).await;
@@ -504,10 +554,19 @@ fn bad_calls_are_rejected_with_the_right_status_and_the_worker_keeps_serving() {
         let e = code(wrong.info(info()).await).unwrap_err();
         assert_eq!(e.0, tonic::Code::Unauthenticated, "{e:?}");
         let mut c = raw_client(w.address, good).await;
-        assert!(c.info(info()).await.is_ok(), "still serving after bad tokens");
+        assert!(
+            c.info(info()).await.is_ok(),
+            "still serving after bad tokens"
+        );
 
         // Version mismatch: refused, the message names both versions.
-        let e = code(c.info(pb::InfoRequest { protocol_version: 99 }).await).unwrap_err();
+        let e = code(
+            c.info(pb::InfoRequest {
+                protocol_version: 99,
+            })
+            .await,
+        )
+        .unwrap_err();
         assert_eq!(e.0, tonic::Code::FailedPrecondition, "{e:?}");
         assert!(
             e.1.contains("99") && e.1.contains(&format!("version {PROTOCOL_VERSION}")),
@@ -541,11 +600,18 @@ fn bad_calls_are_rejected_with_the_right_status_and_the_worker_keeps_serving() {
         assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
 
         // Still serving: a valid level loads.
-        let r = c.load_level(load_request(32, 5)).await.unwrap().into_inner();
+        let r = c
+            .load_level(load_request(32, 5))
+            .await
+            .unwrap()
+            .into_inner();
         assert_eq!(r.total_vectors, 28 * 28);
     });
     drop(rt);
-    assert!(harness::alive(w.pid()), "the worker survived every bad call");
+    assert!(
+        harness::alive(w.pid()),
+        "the worker survived every bad call"
+    );
     // And a whole synthesis on it still equals the local engine.
     let out = run(Box::new(connect(options(vec![w.spec(Some(&token))])))).unwrap();
     assert_same_as_local(&out, "after bad calls");
@@ -568,12 +634,18 @@ fn master_refuses_wrong_token_and_version_mismatch_with_clear_errors() {
         )
     };
     let e = err(strict(WorkerSpec::new(w.address.to_string(), None)));
-    assert!(e.contains("Unauthenticated") && e.contains("missing"), "{e}");
+    assert!(
+        e.contains("Unauthenticated") && e.contains("missing"),
+        "{e}"
+    );
     let e = err(strict(WorkerSpec::new(
         w.address.to_string(),
         Some("wrong".into()),
     )));
-    assert!(e.contains("Unauthenticated") && e.contains("wrong token"), "{e}");
+    assert!(
+        e.contains("Unauthenticated") && e.contains("wrong token"),
+        "{e}"
+    );
     let e = err(ClusterOptions {
         protocol_version: PROTOCOL_VERSION + 1,
         ..strict(w.spec(Some(&token)))
@@ -606,7 +678,12 @@ fn tls_cluster_matches_the_local_engine() {
     let made = std::process::Command::new("openssl")
         .args(["req", "-x509", "-newkey", "ec", "-pkeyopt"])
         .args(["ec_paramgen_curve:prime256v1", "-nodes", "-days", "1"])
-        .args(["-subj", "/CN=localhost", "-addext", "subjectAltName=DNS:localhost"])
+        .args([
+            "-subj",
+            "/CN=localhost",
+            "-addext",
+            "subjectAltName=DNS:localhost",
+        ])
         .args(["-addext", "basicConstraints=critical,CA:FALSE", "-keyout"])
         .arg(&key)
         .arg("-out")
@@ -661,7 +738,9 @@ fn cli_local_workers_match_local_search_and_are_stopped_afterwards() {
         let mut c = std::process::Command::new(&texsyn);
         c.arg("synth")
             .arg(&sample)
-            .args(["--size", "96x96", "--levels", "3", "--seed", "3", "-q", "-o"])
+            .args([
+                "--size", "96x96", "--levels", "3", "--seed", "3", "-q", "-o",
+            ])
             .arg(dir.path().join(out));
         c
     };
@@ -669,10 +748,19 @@ fn cli_local_workers_match_local_search_and_are_stopped_afterwards() {
         .args(["--search", "local,local,local"])
         .output()
         .unwrap();
-    assert!(local.status.success(), "{}", String::from_utf8_lossy(&local.stderr));
+    assert!(
+        local.status.success(),
+        "{}",
+        String::from_utf8_lossy(&local.stderr)
+    );
     let report = dir.path().join("report.json");
     let cluster = common("cluster.png")
-        .args(["--search", "cluster,cluster,cluster", "--local-workers", "2"])
+        .args([
+            "--search",
+            "cluster,cluster,cluster",
+            "--local-workers",
+            "2",
+        ])
         .args(["--require-cluster", "--report"])
         .arg(&report)
         .output()
@@ -701,5 +789,8 @@ fn cli_local_workers_match_local_search_and_are_stopped_afterwards() {
     let bad = common("x.png").arg("--require-cluster").output().unwrap();
     assert!(!bad.status.success());
     let msg = String::from_utf8_lossy(&bad.stderr);
-    assert!(msg.contains("--require-cluster") && msg.contains("--workers"), "{msg}");
+    assert!(
+        msg.contains("--require-cluster") && msg.contains("--workers"),
+        "{msg}"
+    );
 }

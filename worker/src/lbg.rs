@@ -508,18 +508,14 @@ impl Trainer<'_> {
         }
         // Half the distance to the nearest other seed, kept doubled: a vector
         // with 2·u < sep[a] is strictly nearer to its seed than to any other.
-        let sep: Vec<u64> = (0..k)
-            .into_par_iter()
-            .map(|j| {
-                let cj = &new[j * s..(j + 1) * s];
-                (0..k)
-                    .filter(|&o| o != j)
-                    .map(|o| full_distance(layout, params, cj, &new[o * s..(o + 1) * s]))
-                    .min()
-                    .unwrap_or(u64::MAX)
-            })
-            .collect();
+        // The distance of a seed to itself (0) is the smallest of its row, so
+        // the second smallest is the distance to the nearest other seed.
         let q = self.seed_blocks(new, k);
+        let sep = {
+            let mut rows = AlignedBytes::zeroed(k * s + SLACK);
+            rows.as_mut_slice()[..k * s].copy_from_slice(&new[..k * s]);
+            self.score(rows.as_slice(), k, &q).second
+        };
         a.arg
             .par_chunks_mut(TRAIN_CHUNK)
             .zip(a.upper.par_chunks_mut(TRAIN_CHUNK))

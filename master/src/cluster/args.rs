@@ -28,7 +28,7 @@ pub struct ClusterArgs {
     /// Hosts file (TOML): [[worker]] entries with address = "host:port" and optional token_file.
     #[arg(long, value_name = "FILE")]
     pub hosts: Option<PathBuf>,
-    /// Start N local worker processes on 127.0.0.1..N for this run (stopped at the end).
+    /// Start N local worker processes on 127.0.0.2, 127.0.0.3, ... for this run (stopped at the end).
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub local_workers: usize,
     /// Search threads per local worker (default: the cores divided among them).
@@ -73,7 +73,10 @@ impl ClusterArgs {
                 (self.token_file.is_some(), "--token-file"),
                 (self.tls_ca.is_some(), "--tls-ca"),
                 (self.worker_binary.is_some(), "--worker-binary"),
-                (self.local_worker_threads.is_some(), "--local-worker-threads"),
+                (
+                    self.local_worker_threads.is_some(),
+                    "--local-worker-threads",
+                ),
             ] {
                 if set {
                     bail!("{flag} needs workers: add --workers, --hosts or --local-workers");
@@ -153,7 +156,10 @@ mod tests {
             ..Default::default()
         };
         let e = a.setup().unwrap_err().to_string();
-        assert!(e.contains("--require-cluster") && e.contains("--workers"), "{e}");
+        assert!(
+            e.contains("--require-cluster") && e.contains("--workers"),
+            "{e}"
+        );
     }
 
     #[test]

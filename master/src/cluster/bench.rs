@@ -88,7 +88,10 @@ fn make_batches(
 }
 
 pub fn run(b: &ClusterBench) -> Result<()> {
-    ensure!(b.batch >= 1 && b.batches >= 1, "--batch and --batches must be ≥ 1");
+    ensure!(
+        b.batch >= 1 && b.batches >= 1,
+        "--batch and --batches must be ≥ 1"
+    );
     let file = b.textures.join("gravel_gray_500.png");
     let img = imaging::load_color(&file)?;
     let lum = imaging::luminance(&img);
@@ -100,12 +103,7 @@ pub fn run(b: &ClusterBench) -> Result<()> {
     };
     let sample = Sample {
         fine: Plane::new(lum.width, lum.height, &lum.data, None)?,
-        parent: Some(Plane::new(
-            parent.width,
-            parent.height,
-            &parent.data,
-            None,
-        )?),
+        parent: Some(Plane::new(parent.width, parent.height, &parent.data, None)?),
     };
     let positions = texsyn_worker::layout::reference_positions(&sample, &geometry)?;
     let data = LevelData {
@@ -174,7 +172,7 @@ pub fn run(b: &ClusterBench) -> Result<()> {
             .map(|w| w.iter().filter_map(|x| x["seconds"].as_f64()).collect())
             .unwrap_or_default()
     };
-    let mut worker_per_batch = vec![0.0; 2];
+    let mut worker_per_batch = [0.0; 2];
     for _ in 0..b.rounds.max(1) {
         let mut truth: Vec<Vec<Hit>> = Vec::new();
         let mut local_seconds = 0.0;

@@ -86,7 +86,10 @@ pub(crate) async fn connect(
             let mut msg = e.to_string();
             let mut src = std::error::Error::source(&e);
             while let Some(s) = src {
-                msg = format!("{msg}: {s}");
+                let text = s.to_string();
+                if !msg.contains(&text) {
+                    msg = format!("{msg}: {text}");
+                }
                 src = s.source();
             }
             return Err(format!("cannot connect: {msg}"));

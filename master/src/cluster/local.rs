@@ -1,5 +1,5 @@
 //! A local multi-process cluster (`--local-workers N`, DESIGN §4 "Discovery"):
-//! `texsyn-worker` processes on 127.0.0.1, 127.0.0.2, ... with port 0, a fresh
+//! `texsyn-worker` processes on 127.0.0.2, 127.0.0.3, ... with port 0, a fresh
 //! random token in a 0600 file, their ports read from the `listening on ADDR`
 //! line. They are killed when [`LocalWorkers`] is dropped, on success and on
 //! error alike.
@@ -141,6 +141,20 @@ pub fn spawn_worker(
     if std::env::var_os("RUST_LOG").is_none() {
         cmd.env("RUST_LOG", "warn");
     }
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::process::CommandExt;
+        // The worker gets SIGTERM when the thread that started it ends, so a
+        // master killed with SIGKILL leaves no worker behind. (Start workers
+        // from a thread that outlives them: the main thread, or a test's.)
+        // SAFETY: only async-signal-safe prctl(2) runs between fork and exec.
+        unsafe {
+            cmd.pre_exec(|| {
+                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM as libc::c_ulong);
+                Ok(())
+            });
+        }
+    }
     let mut child = cmd
         .spawn()
         .with_context(|| format!("cannot start {}", binary.display()))?;
@@ -183,7 +197,7 @@ pub fn spawn_worker(
     Ok(process)
 }
 
-/// `--local-workers N`: N worker processes on 127.0.0.1..=127.0.0.N sharing a
+/// `--local-workers N`: N worker processes on 127.0.0.2..=127.0.0.(N+1) sharing a
 /// fresh token. Dropping this kills them and deletes the token file.
 pub struct LocalWorkers {
     pub workers: Vec<WorkerProcess>,
@@ -201,7 +215,7 @@ impl std::fmt::Debug for LocalWorkers {
 }
 
 impl LocalWorkers {
-    /// Starts `n` workers (1..=254) with `threads` search threads each (default:
+    /// Starts `n` workers (1..=253) with `threads` search threads each (default:
     /// the cores divided among them) and any `extra` worker arguments.
     pub fn spawn(
         binary: &Path,
@@ -209,8 +223,8 @@ impl LocalWorkers {
         threads: Option<usize>,
         extra: &[OsString],
     ) -> Result<Self> {
-        if n == 0 || n > 254 {
-            bail!("--local-workers {n} must be in 1..=254");
+        if n == 0 || n > 253 {
+            bail!("--local-workers {n} must be in 1..=253");
         }
         let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
         let threads = threads.unwrap_or((cores / n).max(1));
@@ -223,7 +237,7 @@ impl LocalWorkers {
         write_token_file(&token_path, &token)?;
         let mut workers = Vec::with_capacity(n);
         for k in 0..n {
-            let ip = Ipv4Addr::new(127, 0, 0, (k + 1) as u8);
+            let ip = Ipv4Addr::new(127, 0, 0, (k + 2) as u8);
             let mut args: Vec<OsString> = vec![
                 "--threads".into(),
                 threads.to_string().into(),

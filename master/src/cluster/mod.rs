@@ -111,7 +111,7 @@ impl Default for ClusterOptions {
             master_share: false,
             deadline_factor: 8.0,
             deadline_floor: Duration::from_secs(2),
-            call_timeout: Duration::from_secs(30),
+            call_timeout: Duration::from_secs(10),
             connect_timeout: Duration::from_secs(5),
             slow_factor: 4.0,
             slow_strikes: 3,
@@ -303,6 +303,15 @@ pub fn calibrate_local(engine: &Engine, size: CalibrationSize) -> Result<f64> {
     Ok(vectors as f64 * f64::from(size.queries.max(1)) / best.max(1e-9))
 }
 
+/// `x` seconds as a duration, clamped to 0..=10⁶ s (never panics).
+fn capped_secs(x: f64) -> Duration {
+    Duration::from_secs_f64(if x.is_finite() {
+        x.clamp(0.0, 1e6)
+    } else {
+        1e6
+    })
+}
+
 /// The unpadded values and masks (hi part then lo part) of every query, as sent.
 fn unpadded(batch: &QueryBatch) -> (Vec<u8>, Vec<u8>) {
     let l = batch.layout();
@@ -326,8 +335,7 @@ fn queries_per_chunk(max_message: u64, dims: usize) -> usize {
     let by_answer = room / 24;
     by_request
         .min(by_answer)
-        .min(texsyn_worker::service::MAX_QUERIES)
-        .max(1)
+        .clamp(1, texsyn_worker::service::MAX_QUERIES)
 }
 
 impl ClusterSearch {
@@ -458,14 +466,20 @@ impl ClusterSearch {
     /// Calibrates the workers one after the other: run side by side, workers
     /// sharing a machine (or its memory bandwidth) would measure each other's
     /// load instead of their own speed. Failures are returned, not applied.
-    fn calibrate_each(&mut self, clients: Vec<(usize, Client)>) -> Vec<(usize, Result<f64, String>)> {
+    fn calibrate_each(
+        &mut self,
+        clients: Vec<(usize, Client)>,
+    ) -> Vec<(usize, Result<f64, String>)> {
         let (size, d) = (self.opts.calibration, self.opts.call_timeout);
         let rt = self.rt.as_ref().expect("the runtime lives until drop");
         clients
             .into_iter()
             .map(|(i, c)| {
                 let span = tracing::info_span!("worker", address = %self.slots[i].spec.address);
-                (i, block_on(rt, conn::calibrate(c, size, d).instrument(span)))
+                (
+                    i,
+                    block_on(rt, conn::calibrate(c, size, d).instrument(span)),
+                )
             })
             .collect()
     }
@@ -560,7 +574,7 @@ impl ClusterSearch {
         let lv = level.level;
         let bytes = (level.fine.pixels.len() * 2) as u64
             + level.parent.as_ref().map_or(0, |p| p.pixels.len() * 2) as u64;
-        let d = self.opts.call_timeout + Duration::from_secs_f64(bytes as f64 / 20e6);
+        let d = self.opts.call_timeout + capped_secs(bytes as f64 / 20e6);
         let jobs: Vec<_> = todo
             .iter()
             .map(|&i| {
@@ -659,7 +673,7 @@ impl ClusterSearch {
                 .map(|(&i, r)| {
                     let s = &self.slots[i];
                     let d = self.opts.call_timeout
-                        + Duration::from_secs_f64((r.end - r.start) as f64 * stride / 100e6);
+                        + capped_secs((r.end - r.start) as f64 * stride / 100e6);
                     let req = pb::AssignRequest {
                         job_id: job.clone(),
                         level: lv as u32,
@@ -689,7 +703,7 @@ impl ClusterSearch {
                         self.drop_worker(
                             i,
                             format!(
-                                "Assign built {} vectors for the range {}..{} of {} ",
+                                "Assign built {} vectors for the range {}..{} of {} vectors",
                                 reply.vectors,
                                 r.start,
                                 r.end,
@@ -804,6 +818,9 @@ impl ClusterSearch {
             None,
             format!("{reason}; new rates (pairs/s): {}", rates.join(", ")),
         );
+        // Workers that came back (or were never reached) are taken in here too.
+        self.join_workers();
+        self.load_on_workers();
         self.batches_since_recalibration = 0;
         self.repartition("repartition", format!("recalibrated: {reason}"))
     }
@@ -816,9 +833,13 @@ impl ClusterSearch {
         values: &[u8],
         masks: &[u8],
         batch_id: u64,
-    ) -> Result<std::result::Result<Vec<Hit>, Vec<(usize, String)>>> {
+    ) -> Result<Round> {
         let level = self.level.as_ref().context("search before load_level")?;
         let (lv, dims) = (level.level, level.layout().dims());
+        // Calibration pairs are vectors of the calibration's stride; this level's
+        // cost more or less in proportion to their bytes.
+        let cost = level.layout().stride() as f64
+            / Layout::new(self.opts.calibration.dims.max(1) as usize, 0).stride() as f64;
         let n = batch.len();
         let participants: Vec<usize> = (0..self.slots.len())
             .filter(|&i| self.slots[i].active() && self.slots[i].len() > 0)
@@ -855,10 +876,9 @@ impl ClusterSearch {
         let mut expected = Vec::with_capacity(participants.len());
         for &i in &participants {
             let s = &mut self.slots[i];
-            let exp = s.len() as f64 * n as f64 / s.rate.max(1.0);
-            let deadline = now
-                + Duration::from_secs_f64(exp * self.opts.deadline_factor)
-                + self.opts.deadline_floor;
+            let exp = s.len() as f64 * n as f64 * cost / s.rate.max(1.0);
+            let deadline =
+                now + capped_secs(exp * self.opts.deadline_factor) + self.opts.deadline_floor;
             let per = queries_per_chunk(s.info.as_ref().map_or(4 << 20, |x| x.max_message), dims);
             let chunks: Vec<pb::SearchBatch> = (0..n)
                 .step_by(per)
@@ -962,6 +982,9 @@ impl ClusterSearch {
         Ok(Ok(merged))
     }
 }
+
+/// One round of a batch: the merged answers, or the workers that failed (slot, reason).
+type Round = std::result::Result<Vec<Hit>, Vec<(usize, String)>>;
 
 /// Awaits every future, concurrently, in order.
 async fn join_all<F>(futures: Vec<F>) -> Vec<F::Output>
