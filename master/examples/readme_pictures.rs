@@ -11,7 +11,7 @@ use texsyn::{synthesize, Config, Mode, Position, SynthMethod};
 use texsyn_worker::Engine;
 
 fn run(sample: &ColorImage, mode: Mode, cfg: Config) -> Result<ColorImage> {
-    let mut backend = PlannedSearch::new(Plan::Auto, LocalSearch::new(Engine::default()));
+    let mut backend = PlannedSearch::new(Plan::Exact, LocalSearch::new(Engine::default()));
     let out = synthesize(sample, &mode, &cfg, &mut backend, &Silent)?;
     println!(
         "  {} in {:.2} s",

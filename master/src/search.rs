@@ -119,7 +119,11 @@ impl std::str::FromStr for Strategy {
 pub enum Plan {
     /// Strategies coarsest level first, as the user writes them.
     Levels(Vec<Strategy>),
-    /// Picked per level from the estimated cost.
+    /// Exhaustive on every level: on the cluster for the large levels when one
+    /// is attached, else on this machine. The default: exact answers.
+    Exact,
+    /// Picked per level from the estimated cost; LBG (approximate) for levels
+    /// above the budget.
     Auto,
 }
 
@@ -128,6 +132,9 @@ impl std::str::FromStr for Plan {
     fn from_str(s: &str) -> Result<Self> {
         if s.trim().eq_ignore_ascii_case("auto") {
             return Ok(Plan::Auto);
+        }
+        if s.trim().eq_ignore_ascii_case("exact") {
+            return Ok(Plan::Exact);
         }
         let v = s
             .split(',')
@@ -211,6 +218,14 @@ impl PlannedSearch {
     fn choose(&self, level: &LevelData) -> Strategy {
         match &self.plan {
             Plan::Levels(v) => v[level.levels - 1 - level.level],
+            Plan::Exact => {
+                let big = level_cost(level) > self.auto_budget;
+                if self.cluster.is_some() && (big || level.level == 0) {
+                    Strategy::Cluster
+                } else {
+                    Strategy::Local
+                }
+            }
             Plan::Auto => {
                 let big = level_cost(level) > self.auto_budget;
                 if self.cluster.is_some() && (big || level.level == 0) {

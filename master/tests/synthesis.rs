@@ -23,7 +23,7 @@ fn run(sample: &ColorImage, mode: &Mode, cfg: &Config, threads: usize) -> Output
         .build()
         .unwrap();
     let mut backend = PlannedSearch::new(
-        Plan::Auto,
+        Plan::Exact,
         LocalSearch::new(Engine::default().with_min_chunk(256)),
     );
     pool.install(|| synthesize(sample, mode, cfg, &mut backend, &Silent))
