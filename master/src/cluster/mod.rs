@@ -174,6 +174,9 @@ struct Slot {
     down_reason: Option<String>,
     /// Last non-empty share of a level.
     last_share: f64,
+    /// This level's searched pairs (in calibration units) and reported seconds.
+    level_pairs: f64,
+    level_seconds: f64,
 }
 
 impl Slot {
@@ -195,6 +198,14 @@ struct LevelState {
     fine: OwnedPlane,
     parent: Option<OwnedPlane>,
     positions: Vec<[u32; 2]>,
+    /// About how many queries the level will ask.
+    expected_queries: u64,
+    /// Queries answered so far.
+    queries: u64,
+    /// The partition was corrected from measured throughput once.
+    rebalanced: bool,
+    /// Longest Assign build time of the last partition, in seconds.
+    assign_seconds: f64,
 }
 
 struct OwnedPlane {
@@ -375,6 +386,8 @@ impl ClusterSearch {
                 drops: 0,
                 down_reason: None,
                 last_share: 0.0,
+                level_pairs: 0.0,
+                level_seconds: 0.0,
             })
             .collect();
         let mut me = Self {
@@ -469,19 +482,19 @@ impl ClusterSearch {
     fn calibrate_each(&self, clients: Vec<(usize, Client)>) -> Vec<(usize, Result<f64, String>)> {
         let (size, d) = (self.opts.calibration, self.opts.call_timeout);
         let rt = self.rt.as_ref().expect("the runtime lives until drop");
-        clients
-            .into_iter()
-            .map(|(i, c)| {
-                let span = tracing::info_span!("worker", address = %self.slots[i].spec.address);
-                // Best of two: a short run is easily disturbed by other load.
-                let best = async move {
-                    let first = conn::calibrate(c.clone(), size, d).await?;
-                    let second = conn::calibrate(c, size, d).await?;
-                    Ok::<f64, String>(first.max(second))
-                };
-                (i, block_on(rt, best.instrument(span)))
-            })
-            .collect()
+        let mut results: Vec<(usize, Result<f64, String>)> =
+            clients.iter().map(|(i, _)| (*i, Ok(0.0))).collect();
+        // Two rounds over all workers, the best of each worker counts: a short
+        // run is easily disturbed, and the first one on a machine runs cold.
+        for _ in 0..2 {
+            for ((i, c), (_, r)) in clients.iter().zip(results.iter_mut()) {
+                let Ok(best) = r else { continue };
+                let span = tracing::info_span!("worker", address = %self.slots[*i].spec.address);
+                *r = block_on(rt, conn::calibrate(c.clone(), size, d).instrument(span))
+                    .map(|rate| rate.max(*best));
+            }
+        }
+        results
     }
 
     /// Connects (Info, then Calibrate) every worker not in use.
@@ -691,6 +704,11 @@ impl ClusterSearch {
             for ((&i, r), res) in active.iter().zip(&ranges).zip(results) {
                 match res {
                     Ok(reply) if reply.vectors == r.end - r.start => {
+                        if let Some(l) = self.level.as_mut() {
+                            if reply.build_seconds.is_finite() {
+                                l.assign_seconds = l.assign_seconds.max(reply.build_seconds);
+                            }
+                        }
                         let s = &mut self.slots[i];
                         s.range = r.clone();
                         s.strikes = 0;
@@ -825,6 +843,71 @@ impl ClusterSearch {
         self.repartition("repartition", format!("recalibrated: {reason}"))
     }
 
+    /// Once per level, after some batches: if the workers' measured throughput
+    /// says the calibrated partition is off by more than 20% (a short
+    /// calibration is easily disturbed), and the rest of the level is long
+    /// enough to pay for rebuilding the ranges, cut the level anew by the
+    /// measured rates.
+    fn maybe_rebalance(&mut self) -> Result<()> {
+        let Some(level) = &self.level else {
+            return Ok(());
+        };
+        // (The master's own share keeps its calibrated weight, so it is left alone.)
+        if level.rebalanced || self.opts.master_share || self.batches_since_recalibration < 8 {
+            return Ok(());
+        }
+        let parts: Vec<usize> = (0..self.slots.len())
+            .filter(|&i| self.slots[i].active() && self.slots[i].len() > 0)
+            .collect();
+        if parts.len() < 2
+            || parts
+                .iter()
+                .any(|&i| self.slots[i].level_seconds < 0.02 || self.slots[i].level_pairs <= 0.0)
+        {
+            return Ok(());
+        }
+        let measured: Vec<f64> = parts
+            .iter()
+            .map(|&i| self.slots[i].level_pairs / self.slots[i].level_seconds)
+            .collect();
+        // Seconds per query of each part now, and with a partition by the measured rates.
+        let per_query: Vec<f64> = parts
+            .iter()
+            .zip(&measured)
+            .map(|(&i, r)| self.slots[i].len() as f64 / r)
+            .collect();
+        let slowest = per_query.iter().copied().fold(0.0, f64::max);
+        let fastest = per_query.iter().copied().fold(f64::INFINITY, f64::min);
+        let covered: f64 = parts.iter().map(|&i| self.slots[i].len() as f64).sum();
+        let balanced = covered / measured.iter().sum::<f64>();
+        let remaining = level.expected_queries.saturating_sub(level.queries) as f64;
+        let gain = (slowest - balanced) * remaining;
+        if slowest <= 1.2 * fastest || gain < 3.0 * level.assign_seconds.max(0.01) {
+            return Ok(());
+        }
+        let lv = level.level;
+        if let Some(l) = self.level.as_mut() {
+            l.rebalanced = true;
+        }
+        let mut text = Vec::new();
+        for (&i, r) in parts.iter().zip(&measured) {
+            let s = &mut self.slots[i];
+            text.push(format!(
+                "{} {:.3e} (calibrated {:.3e})",
+                s.spec.address, r, s.rate
+            ));
+            s.rate = *r;
+        }
+        tracing::info!(level = lv, rates = %text.join(", "), "rebalancing from measured throughput");
+        self.repartition(
+            "repartition",
+            format!(
+                "rebalanced from measured throughput (pairs/s): {}",
+                text.join(", ")
+            ),
+        )
+    }
+
     /// Searches one batch on the current partition. Err(failures) when any
     /// worker failed: nothing of this round is used.
     fn try_batch(
@@ -942,6 +1025,8 @@ impl ClusterSearch {
             s.stream = a.stream;
             match a.result {
                 Ok(hits) => {
+                    s.level_pairs += s.len() as f64 * n as f64 * cost;
+                    s.level_seconds += a.search_seconds;
                     s.stats.queries += n as u64;
                     s.stats.batches += 1;
                     s.stats.search_seconds += a.search_seconds;
@@ -973,11 +1058,16 @@ impl ClusterSearch {
         let refs: Vec<&[Hit]> = parts.iter().map(Vec::as_slice).collect();
         let merged = merge::merge_answers(n, &refs);
         self.batches_since_recalibration += 1;
+        if let Some(l) = self.level.as_mut() {
+            l.queries += n as u64;
+        }
         if let Some(reason) = slow {
             if self.batches_since_recalibration >= self.opts.recalibrate_cooldown {
                 // The answer above is complete; the new partition serves the next batch.
                 self.recalibrate(reason)?;
             }
+        } else {
+            self.maybe_rebalance()?;
         }
         Ok(Ok(merged))
     }
@@ -1019,11 +1109,17 @@ impl SearchBackend for ClusterSearch {
             fine: OwnedPlane::from(&data.sample.fine),
             parent: data.sample.parent.as_ref().map(OwnedPlane::from),
             positions: data.positions.to_vec(),
+            expected_queries: data.expected_queries,
+            queries: 0,
+            rebalanced: false,
+            assign_seconds: 0.0,
         });
         self.master.space = None;
         self.master.range = 0..0;
         for s in &mut self.slots {
             s.range = 0..0;
+            s.level_pairs = 0.0;
+            s.level_seconds = 0.0;
         }
         // Dropped and new workers are taken (back) in here.
         self.join_workers();
