@@ -219,7 +219,7 @@ fn bad_input_fails_cleanly() {
     );
     fails(
         &["synth", sm, "-o", "/no/such/dir/out.png", "--size", "64x64"],
-        &Path::new("/no/such/dir/out.png"),
+        Path::new("/no/such/dir/out.png"),
         &["/no/such/dir"],
     );
     fails(

@@ -291,7 +291,11 @@ pub fn run(b: &ClusterBench) -> Result<()> {
     // Peak memory against each worker's range.
     let ranges: Vec<(String, u64)> = stats["events"]
         .as_array()
-        .and_then(|e| e.iter().rev().find(|e| e["kind"] == "partition"))
+        .and_then(|e| {
+            e.iter()
+                .rev()
+                .find(|e| e["shares"].as_array().is_some_and(|s| !s.is_empty()))
+        })
         .and_then(|e| e["shares"].as_array())
         .map(|s| {
             s.iter()
