@@ -54,7 +54,7 @@ fn strings(v: &serde_yaml::Value) -> Vec<String> {
             .map(|x| {
                 x.as_str()
                     .map(str::to_string)
-                    .unwrap_or_else(|| format!("{}", serde_yaml::to_string(x).unwrap().trim()))
+                    .unwrap_or_else(|| serde_yaml::to_string(x).unwrap().trim().to_string())
             })
             .collect(),
         serde_yaml::Value::String(s) => s.split_whitespace().map(str::to_string).collect(),
@@ -105,10 +105,7 @@ fn compose_file_parses_and_its_commands_are_valid() {
         checked += 1;
         let hc = strings(&svc["healthcheck"]["test"]);
         if let Some(pos) = hc.iter().position(|a| a.starts_with("texsyn")) {
-            check_command(
-                &hc[pos..].to_vec(),
-                &format!("compose healthcheck of {name}"),
-            );
+            check_command(&hc[pos..], &format!("compose healthcheck of {name}"));
         }
     }
     assert!(checked >= 4);
