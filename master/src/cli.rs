@@ -413,6 +413,7 @@ fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) 
         None => (None, None),
     };
     let mut backend = PlannedSearch::new(plan, LocalSearch::new(engine)).with_lbg(Box::new(lbg));
+    backend.lbg_probes = u32::try_from(common.lbg_probes).unwrap_or(u32::MAX);
     if let Some(options) = cluster_options {
         let cluster = crate::cluster::ClusterSearch::connect(options, engine)?;
         backend = backend.with_cluster(Box::new(cluster));

@@ -32,6 +32,12 @@ pub trait SearchBackend: Send {
     fn search(&mut self, queries: &QueryBatch) -> Result<Vec<Hit>>;
     /// Releases the level's memory.
     fn end_level(&mut self) {}
+    /// Asks for LBG with `probes` instead of exhaustive search from the next
+    /// level on (0 = exhaustive); only backends that can quantise accept it.
+    fn set_lbg_probes(&mut self, probes: u32) -> Result<()> {
+        ensure!(probes == 0, "{} cannot search with LBG", self.name());
+        Ok(())
+    }
     /// Backend-specific figures for the run report (workers, drops, codebooks...).
     fn stats(&self) -> serde_json::Value {
         serde_json::Value::Null
@@ -98,6 +104,9 @@ pub enum Strategy {
     Cluster,
     /// LBG vector quantisation (approximate).
     Lbg,
+    /// LBG on the cluster: each worker quantises its own range.
+    #[serde(rename = "cluster-lbg")]
+    ClusterLbg,
 }
 
 impl std::str::FromStr for Strategy {
@@ -107,8 +116,9 @@ impl std::str::FromStr for Strategy {
             "local" | "exhaustive" | "smp" => Strategy::Local,
             "cluster" => Strategy::Cluster,
             "lbg" => Strategy::Lbg,
+            "cluster-lbg" => Strategy::ClusterLbg,
             other => {
-                bail!("unknown search strategy '{other}'; use local (exhaustive), cluster or lbg")
+                bail!("unknown search strategy '{other}'; use local (exhaustive), cluster, lbg or cluster-lbg")
             }
         })
     }
@@ -167,6 +177,8 @@ pub struct PlannedSearch {
     used: Vec<(usize, Strategy)>,
     /// Budget of `auto`: levels cheaper than this many compared bytes stay exhaustive.
     pub auto_budget: f64,
+    /// Probes of `cluster-lbg` levels.
+    pub lbg_probes: u32,
 }
 
 impl PlannedSearch {
@@ -178,6 +190,7 @@ impl PlannedSearch {
             lbg: None,
             current: Strategy::Local,
             used: Vec::new(),
+            lbg_probes: 1,
             auto_budget: 2e11,
         }
     }
@@ -202,7 +215,7 @@ impl PlannedSearch {
             );
             for s in v {
                 match s {
-                    Strategy::Cluster if self.cluster.is_none() => {
+                    Strategy::Cluster | Strategy::ClusterLbg if self.cluster.is_none() => {
                         bail!("the search plan uses 'cluster' but no workers were given; add --workers, --hosts or --local-workers")
                     }
                     Strategy::Lbg if self.lbg.is_none() => {
@@ -241,7 +254,7 @@ impl PlannedSearch {
 
     fn backend(&mut self) -> &mut dyn SearchBackend {
         match self.current {
-            Strategy::Cluster => self
+            Strategy::Cluster | Strategy::ClusterLbg => self
                 .cluster
                 .as_deref_mut()
                 .expect("checked by check_levels"),
@@ -272,6 +285,14 @@ impl SearchBackend for PlannedSearch {
         self.check_levels(level.levels)?;
         self.current = self.choose(level);
         self.used.push((level.level, self.current));
+        if let Some(c) = self.cluster.as_deref_mut() {
+            let probes = if self.current == Strategy::ClusterLbg {
+                self.lbg_probes.max(1)
+            } else {
+                0
+            };
+            c.set_lbg_probes(probes)?;
+        }
         tracing::info!(level = level.level, strategy = ?self.current, "search strategy");
         self.backend().load_level(level)
     }

@@ -794,3 +794,56 @@ fn cli_local_workers_match_local_search_and_are_stopped_afterwards() {
         "{msg}"
     );
 }
+
+/// LBG on the cluster (issue: approximate search per level): each worker
+/// quantises its own range. With probes ≥ every worker's seeds the answers are
+/// exhaustive, so the output equals the local engine; with one probe the run
+/// completes, the plan is recorded and the answers are valid references.
+#[test]
+fn lbg_on_the_cluster_is_exact_with_all_probes_and_runs_with_one() {
+    let token = Token::new();
+    let workers: Vec<Worker> = (1..=2).map(|k| Worker::with_token(k, &token, 1)).collect();
+    let specs: Vec<WorkerSpec> = workers.iter().map(|w| w.spec(Some(&token))).collect();
+    for probes in [u32::MAX, 1] {
+        let mut backend = PlannedSearch::new(
+            Plan::Levels(vec![Strategy::ClusterLbg; LEVELS]),
+            LocalSearch::new(Engine::default()),
+        )
+        .with_cluster(Box::new(connect(options(specs.clone()))));
+        backend.lbg_probes = probes;
+        let out = pool()
+            .install(|| synthesize(sample(), &mode(), &config(), &mut backend, &Silent))
+            .unwrap();
+        let plan = out.report.search_stats["plan"].as_array().unwrap();
+        assert_eq!(plan.len(), LEVELS);
+        assert!(
+            plan.iter().all(|p| p["strategy"] == "cluster-lbg"),
+            "{plan:?}"
+        );
+        let stats = cluster_stats(&out);
+        assert!(
+            stats["local_fallback_levels"]
+                .as_array()
+                .unwrap()
+                .is_empty(),
+            "{stats:#}"
+        );
+        if probes == u32::MAX {
+            assert_same_as_local(&out, "cluster LBG with all probes");
+        } else {
+            // One probe really is approximate (the workers quantised) ...
+            assert!(
+                out.copy_map != reference().1,
+                "P = 1 gave the exhaustive answer everywhere"
+            );
+            // ... and every output pixel still comes from the sample it names.
+            let w = out.image.width;
+            for (i, c) in out.copy_map.iter().enumerate() {
+                assert_eq!(
+                    out.image.get(i % w, i / w),
+                    sample().get(c[0] as usize, c[1] as usize)
+                );
+            }
+        }
+    }
+}

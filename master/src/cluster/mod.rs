@@ -287,6 +287,8 @@ pub struct ClusterSearch {
     batches_since_recalibration: u64,
     events: Vec<Event>,
     local_levels: Vec<usize>,
+    /// LBG probes on the workers for the current level (0 = exhaustive).
+    lbg_probes: u32,
 }
 
 /// Reference × query pairs per second of `engine` on this machine, measured
@@ -403,6 +405,7 @@ impl ClusterSearch {
             batches_since_recalibration: 0,
             events: Vec::new(),
             local_levels: Vec::new(),
+            lbg_probes: 0,
         };
         me.join_workers();
         let up = me.slots.iter().filter(|s| s.active()).count();
@@ -692,7 +695,15 @@ impl ClusterSearch {
                         level: lv as u32,
                         start: r.start,
                         end: r.end,
-                        lbg_probes: 0,
+                        // LBG on the cluster: each worker quantises its own range;
+                        // more probes than its seeds means all of them (exact).
+                        lbg_probes: if self.lbg_probes == 0 || r.is_empty() {
+                            0
+                        } else {
+                            (self.lbg_probes as usize).min(texsyn_worker::lbg::default_seeds(
+                                (r.end - r.start) as usize,
+                            )) as u32
+                        },
                         epoch,
                     };
                     let span = tracing::info_span!("worker", address = %s.spec.address);
@@ -1096,6 +1107,11 @@ where
 impl SearchBackend for ClusterSearch {
     fn name(&self) -> String {
         format!("cluster({} workers)", self.slots.len())
+    }
+
+    fn set_lbg_probes(&mut self, probes: u32) -> Result<()> {
+        self.lbg_probes = probes;
+        Ok(())
     }
 
     fn load_level(&mut self, data: &LevelData) -> Result<()> {
