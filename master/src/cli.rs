@@ -100,8 +100,8 @@ pub struct Common {
     /// Search kernel: auto, scalar, avx2, avx512.
     #[arg(long, default_value = "auto")]
     pub kernel: String,
-    /// Search plan per pyramid level, coarsest first: e.g. local,local,lbg or
-    /// cluster,cluster,cluster; or exact (exhaustive everywhere, the cluster for large
+    /// Search plan per pyramid level, coarsest first, each local, cluster, lbg or
+    /// cluster-lbg: e.g. local,local,lbg or cluster,cluster,cluster; or exact (exhaustive everywhere, the cluster for large
     /// levels when workers are given); or auto (LBG, approximate, for levels above the cost budget).
     #[arg(long, default_value = "exact")]
     pub search: String,

@@ -101,6 +101,17 @@ struct HostsFile {
 struct HostEntry {
     address: String,
     token_file: Option<PathBuf>,
+    /// `user@host` to launch the worker over ssh (`--launch`).
+    ssh: Option<String>,
+    /// Path of `texsyn-worker` on that host (default: `texsyn-worker` on its PATH).
+    binary: Option<String>,
+    /// Search threads of the launched worker (default: the host's cores).
+    threads: Option<usize>,
+    /// Port the launched worker listens on (default: the address's port, else any free port).
+    port: Option<u16>,
+    /// Extra options for the ssh client, e.g. `["-F", "/path/ssh_config"]`.
+    #[serde(default)]
+    ssh_options: Vec<String>,
     /// Keys for other tools (e.g. launching over ssh); ignored here, with a note.
     #[serde(flatten)]
     other: std::collections::BTreeMap<String, toml::Value>,
@@ -109,9 +120,35 @@ struct HostEntry {
 /// Largest hosts file read (it is a short list).
 const MAX_HOSTS_FILE: u64 = 1 << 20;
 
+/// A host on which `--launch` starts a worker over ssh.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LaunchSpec {
+    /// Host (name or IP) the worker listens on and the master connects to.
+    pub host: String,
+    /// Port to listen on; 0 = any free port (read from the worker's listening line).
+    pub port: u16,
+    /// ssh target, `user@host`.
+    pub ssh: String,
+    /// `texsyn-worker` on the remote host.
+    pub binary: String,
+    pub threads: Option<usize>,
+    pub ssh_options: Vec<String>,
+}
+
 /// Reads a hosts file. A worker's `token_file` (relative paths are relative to
 /// the hosts file) overrides `default_token`.
 pub fn read_hosts_file(path: &Path, default_token: Option<&str>) -> Result<Vec<WorkerSpec>> {
+    Ok(read_hosts_file_launch(path, default_token, false)?.0)
+}
+
+/// Reads a hosts file; with `launch`, entries with `ssh = "user@host"` are
+/// returned as hosts to launch (their `address` may be a bare host), the others
+/// as running workers.
+pub fn read_hosts_file_launch(
+    path: &Path,
+    default_token: Option<&str>,
+    launch: bool,
+) -> Result<(Vec<WorkerSpec>, Vec<LaunchSpec>)> {
     let meta = std::fs::metadata(path)
         .with_context(|| format!("cannot read the hosts file {}", path.display()))?;
     ensure!(
@@ -135,10 +172,57 @@ pub fn read_hosts_file(path: &Path, default_token: Option<&str>) -> Result<Vec<W
         );
     }
     let base = path.parent().unwrap_or(Path::new("."));
-    parsed
-        .worker
-        .into_iter()
-        .map(|e| {
+    let mut launches = Vec::new();
+    let mut running = Vec::new();
+    for e in parsed.worker {
+        if let (true, Some(ssh)) = (launch, &e.ssh) {
+            ensure!(
+                !ssh.trim().is_empty()
+                    && !ssh.starts_with('-')
+                    && !ssh.contains(char::is_whitespace),
+                "ssh target '{ssh}' in the hosts file {} is not user@host",
+                path.display()
+            );
+            let (host, port) = match split_address(&e.address) {
+                Ok((h, p)) => (h, p),
+                Err(_) => {
+                    let h = e.address.trim().to_string();
+                    split_address(&format!("{h}:1")).with_context(|| {
+                        format!(
+                            "address '{}' in the hosts file {}",
+                            e.address,
+                            path.display()
+                        )
+                    })?;
+                    (h, 0)
+                }
+            };
+            if let Some(t) = e.threads {
+                ensure!(t > 0, "threads = 0 for {} in {}", e.address, path.display());
+            }
+            launches.push(LaunchSpec {
+                host,
+                port: e.port.unwrap_or(port),
+                ssh: ssh.clone(),
+                binary: e.binary.clone().unwrap_or_else(|| "texsyn-worker".into()),
+                threads: e.threads,
+                ssh_options: e.ssh_options.clone(),
+            });
+            continue;
+        }
+        running.push(entry_spec(e, path, base, default_token)?);
+    }
+    Ok((running, launches))
+}
+
+fn entry_spec(
+    e: HostEntry,
+    path: &Path,
+    base: &Path,
+    default_token: Option<&str>,
+) -> Result<WorkerSpec> {
+    {
+        {
             split_address(&e.address)
                 .with_context(|| format!("in the hosts file {}", path.display()))?;
             if !e.other.is_empty() {
@@ -150,8 +234,8 @@ pub fn read_hosts_file(path: &Path, default_token: Option<&str>) -> Result<Vec<W
                 None => default_token.map(str::to_string),
             };
             Ok(WorkerSpec::new(e.address, token))
-        })
-        .collect()
+        }
+    }
 }
 
 /// Parses a `--workers a:1,b:2` list (empty entries are ignored).

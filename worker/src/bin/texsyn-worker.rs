@@ -92,6 +92,12 @@ struct ServeArgs {
     /// Kernel: auto, scalar, avx2, avx512.
     #[arg(long, default_value = "auto")]
     kernel: String,
+    /// Read the shared token from the first line of stdin (never from the command line).
+    #[arg(long, conflicts_with = "token_file")]
+    token_stdin: bool,
+    /// Shut down when stdin reaches end of file (e.g. when the master's ssh session ends).
+    #[arg(long)]
+    exit_on_stdin_close: bool,
 }
 
 /// Parses `123`, `64K`, `64M`, `8G` (binary units).
@@ -116,11 +122,14 @@ impl TryFrom<ServeArgs> for WorkerConfig {
 
     fn try_from(a: ServeArgs) -> anyhow::Result<Self> {
         let defaults = WorkerConfig::default();
-        let token = a
-            .token_file
-            .as_deref()
-            .map(WorkerConfig::read_token_file)
-            .transpose()?;
+        let token = if a.token_stdin {
+            Some(read_token_stdin()?)
+        } else {
+            a.token_file
+                .as_deref()
+                .map(WorkerConfig::read_token_file)
+                .transpose()?
+        };
         let tls = match (&a.tls_cert, &a.tls_key) {
             (Some(c), Some(k)) => Some(TlsIdentity::from_files(c, k)?),
             (None, None) => None,
@@ -218,7 +227,45 @@ fn health(a: HealthArgs) -> anyhow::Result<()> {
     })
 }
 
+/// Reads the token from the first line of stdin (`--token-stdin`).
+fn read_token_stdin() -> anyhow::Result<String> {
+    let mut line = String::new();
+    std::io::stdin()
+        .read_line(&mut line)
+        .context("cannot read the token from stdin")?;
+    let token = line.trim().to_string();
+    if token.is_empty() {
+        bail!("--token-stdin: the first line of stdin is empty; send the shared token on it");
+    }
+    Ok(token)
+}
+
+/// Completes when stdin reaches end of file (read on a plain thread: stdin
+/// reads block).
+fn stdin_closed() -> tokio::sync::oneshot::Receiver<()> {
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    std::thread::Builder::new()
+        .name("texsyn-stdin".into())
+        .spawn(move || {
+            use std::io::Read;
+            let mut buf = [0u8; 256];
+            let mut stdin = std::io::stdin();
+            loop {
+                match stdin.read(&mut buf) {
+                    Ok(0) => break,
+                    Ok(_) => continue,
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                    Err(_) => break,
+                }
+            }
+            let _ = tx.send(());
+        })
+        .expect("cannot start the stdin thread");
+    rx
+}
+
 fn serve(args: ServeArgs) -> anyhow::Result<()> {
+    let exit_on_stdin_close = args.exit_on_stdin_close;
     let config = WorkerConfig::try_from(args)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -236,7 +283,18 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         writeln!(out, "{}", service::listening_line(local))?;
         out.flush()?;
         drop(out);
-        service::serve(config, listener, shutdown_signal()).await
+        if exit_on_stdin_close {
+            let closed = stdin_closed();
+            let stop = async move {
+                tokio::select! {
+                    () = shutdown_signal() => {}
+                    _ = closed => tracing::info!("stdin closed; shutting down"),
+                }
+            };
+            service::serve(config, listener, stop).await
+        } else {
+            service::serve(config, listener, shutdown_signal()).await
+        }
     })
 }
 
