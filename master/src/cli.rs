@@ -85,6 +85,10 @@ pub struct Common {
     /// Chroma blur radius at patch borders (0 = off).
     #[arg(long, default_value_t = 0)]
     pub chroma_blur: usize,
+    /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
+    /// textures whose structure and colour disagree. Runs on this machine.
+    #[arg(long)]
+    pub colour_search: bool,
     /// Also write the copy map as a picture (R = source x, G = source y).
     #[arg(long)]
     pub copy_map: Option<PathBuf>,
@@ -294,6 +298,7 @@ impl TryFrom<&Common> for Config {
             batch: c.batch,
             chroma_blur: c.chroma_blur,
             level_samples: Vec::new(),
+            colour_search: c.colour_search,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -408,9 +413,9 @@ fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) 
     // the backend is declared after them, so it is dropped (ending the job on
     // the workers) before they are killed.
     let cluster = common.cluster.setup()?;
-    let (cluster_options, _local_workers) = match cluster {
-        Some(c) => (Some(c.options), c.local),
-        None => (None, None),
+    let (cluster_options, _local_workers, _ssh_workers) = match cluster {
+        Some(c) => (Some(c.options), c.local, c.ssh),
+        None => (None, None, None),
     };
     let mut backend = PlannedSearch::new(plan, LocalSearch::new(engine)).with_lbg(Box::new(lbg));
     backend.lbg_probes = u32::try_from(common.lbg_probes).unwrap_or(u32::MAX);

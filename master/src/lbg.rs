@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
 use texsyn_worker::lbg::{check_probes, check_threshold, default_seeds, DEFAULT_MAX_ITERATIONS};
-use texsyn_worker::{Codebook, Engine, Hit, LbgConfig, QueryBatch, VectorSpace};
+use texsyn_worker::{Codebook, Engine, Hit, LbgConfig, QueryBatch};
 
 use crate::search::{LevelData, SearchBackend};
 
@@ -130,12 +130,7 @@ impl SearchBackend for LbgSearch {
         self.check_vectors(n)
             .with_context(|| format!("level {}", level.level))?;
         let t = Instant::now();
-        let space = VectorSpace::build_from_positions(
-            &level.sample,
-            &level.geometry,
-            level.positions,
-            0..n as u64,
-        )?;
+        let space = crate::search::level_space(level)?;
         let build_seconds = t.elapsed().as_secs_f64();
         let cfg = LbgConfig {
             seed: level_seed(self.config.seed, level.level),

@@ -16,6 +16,8 @@ pub struct Canvas {
     /// Source coordinate in this level's sample, valid where `defined`.
     pub copy: Vec<[u32; 2]>,
     pub wrap: bool,
+    /// Cb and Cr of each defined pixel, for full-colour search (DESIGN §3.7).
+    pub chroma: Option<[Vec<u8>; 2]>,
 }
 
 impl Canvas {
@@ -28,7 +30,25 @@ impl Canvas {
             defined: vec![false; n],
             copy: vec![[0, 0]; n],
             wrap,
+            chroma: None,
         }
+    }
+
+    /// Adds Cb/Cr planes so queries compare colour too.
+    pub fn with_chroma(mut self) -> Self {
+        let n = self.width * self.height;
+        self.chroma = Some([vec![128; n], vec![128; n]]);
+        self
+    }
+
+    /// The planes a query reads: luminance, then Cb and Cr when searching in colour.
+    fn planes(&self) -> Vec<&[u8]> {
+        let mut v: Vec<&[u8]> = vec![&self.lum];
+        if let Some([cb, cr]) = &self.chroma {
+            v.push(cb);
+            v.push(cr);
+        }
+        v
     }
 
     /// Index of (x, y), wrapped on a torus or `None` outside a plain canvas.
@@ -71,7 +91,8 @@ pub enum Shape {
 }
 
 /// Writes the search vector of the window centred at (cx, cy): `values` and
-/// `mask` hold N² hi components then M² lo components (mask 1 = compare).
+/// `mask` hold N² hi components per channel then M² lo components per channel
+/// (channels: Y, or Y, Cb, Cr for full-colour search); mask 1 = compare.
 #[allow(clippy::too_many_arguments)]
 pub fn query(
     canvas: &Canvas,
@@ -86,36 +107,19 @@ pub fn query(
 ) {
     let r = (n / 2) as isize;
     let mut k = 0;
-    for dy in -r..=r {
-        for dx in -r..=r {
-            let allowed = match shape {
-                Shape::Symmetric => true,
-                Shape::Causal { block } => {
-                    let h = (block / 2) as isize;
-                    dy < -h || (dy <= h && dx < -h)
-                }
-            };
-            match canvas.index(cx + dx, cy + dy) {
-                Some(i) if allowed && canvas.defined[i] => {
-                    values[k] = canvas.lum[i];
-                    mask[k] = 1;
-                }
-                _ => {
-                    values[k] = 0;
-                    mask[k] = 0;
-                }
-            }
-            k += 1;
-        }
-    }
-    if let Some(p) = parent {
-        let pr = (m / 2) as isize;
-        let (px, py) = (cx.div_euclid(2), cy.div_euclid(2));
-        for dy in -pr..=pr {
-            for dx in -pr..=pr {
-                match p.index(px + dx, py + dy) {
-                    Some(i) if p.defined[i] => {
-                        values[k] = p.lum[i];
+    for plane in canvas.planes() {
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let allowed = match shape {
+                    Shape::Symmetric => true,
+                    Shape::Causal { block } => {
+                        let h = (block / 2) as isize;
+                        dy < -h || (dy <= h && dx < -h)
+                    }
+                };
+                match canvas.index(cx + dx, cy + dy) {
+                    Some(i) if allowed && canvas.defined[i] => {
+                        values[k] = plane[i];
                         mask[k] = 1;
                     }
                     _ => {
@@ -124,6 +128,27 @@ pub fn query(
                     }
                 }
                 k += 1;
+            }
+        }
+    }
+    if let Some(p) = parent {
+        let pr = (m / 2) as isize;
+        let (px, py) = (cx.div_euclid(2), cy.div_euclid(2));
+        for plane in p.planes() {
+            for dy in -pr..=pr {
+                for dx in -pr..=pr {
+                    match p.index(px + dx, py + dy) {
+                        Some(i) if p.defined[i] => {
+                            values[k] = plane[i];
+                            mask[k] = 1;
+                        }
+                        _ => {
+                            values[k] = 0;
+                            mask[k] = 0;
+                        }
+                    }
+                    k += 1;
+                }
             }
         }
     }

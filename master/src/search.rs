@@ -4,7 +4,7 @@
 //! and LBG plug in behind it without touching the synthesis code.
 
 use anyhow::{bail, ensure, Result};
-use texsyn_worker::{Engine, Geometry, Hit, Params, QueryBatch, Sample, VectorSpace};
+use texsyn_worker::{Engine, Geometry, Hit, Layout, Params, QueryBatch, Sample, VectorSpace};
 
 /// A level's reference data as the search sees it: the sample planes (the level
 /// and its parent), the geometry and the comparison parameters.
@@ -19,6 +19,25 @@ pub struct LevelData<'a> {
     pub levels: usize,
     /// Blocks still to be synthesised on this level (about the number of queries).
     pub expected_queries: u64,
+    /// Full-colour search: the level's vectors gathered by the master (Y, Cb, Cr
+    /// windows per part) in this layout, instead of luminance vectors built from
+    /// `sample`. Only backends on this machine accept it.
+    pub colour_vectors: Option<(Layout, &'a [u8])>,
+}
+
+/// The level's reference vectors on this machine: luminance vectors built from
+/// the sample planes, or the master's full-colour vectors.
+pub fn level_space(level: &LevelData) -> Result<VectorSpace> {
+    let n = level.positions.len() as u64;
+    Ok(match level.colour_vectors {
+        Some((layout, raw)) => VectorSpace::from_unpadded(layout, 0, raw)?,
+        None => VectorSpace::build_from_positions(
+            &level.sample,
+            &level.geometry,
+            level.positions,
+            0..n,
+        )?,
+    })
 }
 
 /// A search strategy for one level at a time.
@@ -68,13 +87,7 @@ impl SearchBackend for LocalSearch {
     }
 
     fn load_level(&mut self, level: &LevelData) -> Result<()> {
-        let n = level.positions.len() as u64;
-        self.space = Some(VectorSpace::build_from_positions(
-            &level.sample,
-            &level.geometry,
-            level.positions,
-            0..n,
-        )?);
+        self.space = Some(level_space(level)?);
         self.params = level.params;
         Ok(())
     }

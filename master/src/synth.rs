@@ -13,7 +13,7 @@ use anyhow::{bail, ensure, Context, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use texsyn_worker::layout::reference_positions;
-use texsyn_worker::{Geometry, Metric, Params, Plane, QueryBatch, Sample, Weights};
+use texsyn_worker::{Geometry, Layout, Metric, Params, Plane, QueryBatch, Sample, Weights};
 
 use crate::colour;
 use crate::imaging::{self, ColorImage, Gray};
@@ -81,6 +81,9 @@ pub struct Config {
     /// Per-level samples for texture mixing (§10.3): level → image used as that
     /// level's sample at its own resolution.
     pub level_samples: Vec<(usize, ColorImage)>,
+    /// Full-colour search: compare Y, Cb and Cr neighbourhoods (three times the
+    /// vector size) for textures whose structure and colour disagree (§9).
+    pub colour_search: bool,
 }
 
 impl Default for Config {
@@ -97,6 +100,7 @@ impl Default for Config {
             batch: 16,
             chroma_blur: 0,
             level_samples: Vec::new(),
+            colour_search: false,
         }
     }
 }
@@ -227,6 +231,60 @@ struct LevelSample {
     lum: Gray,
     defined: Option<Vec<bool>>,
     parent: Option<(Gray, Option<Vec<bool>>)>,
+    /// Cb, Cr of the level and of its parent (full-colour search only).
+    chroma: Option<[Gray; 2]>,
+    parent_chroma: Option<[Gray; 2]>,
+}
+
+/// A pyramid of planes with their defined masks, finest first.
+type Pyramid = Vec<(Gray, Option<Vec<bool>>)>;
+
+/// Cb and Cr planes of an image (BT.601, integer).
+fn chroma_planes(img: &ColorImage) -> [Gray; 2] {
+    let n = img.width * img.height;
+    let (mut cb, mut cr) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for p in img.rgb.chunks_exact(3) {
+        let (r, g, b) = (i64::from(p[0]), i64::from(p[1]), i64::from(p[2]));
+        cb.push(((-168_736 * r - 331_264 * g + 500_000 * b) / 1_000_000 + 128).clamp(0, 255) as u8);
+        cr.push(((500_000 * r - 418_688 * g - 81_312 * b) / 1_000_000 + 128).clamp(0, 255) as u8);
+    }
+    [
+        Gray::from_vec(img.width, img.height, cb),
+        Gray::from_vec(img.width, img.height, cr),
+    ]
+}
+
+/// Unpadded full-colour reference vectors: per position the Y, Cb and Cr N×N
+/// windows, then (below the coarsest level) the parent's Y, Cb and Cr M×M windows.
+fn colour_vectors(ls: &LevelSample, positions: &[[u32; 2]], n: usize, m: usize) -> Result<Vec<u8>> {
+    let chroma = ls
+        .chroma
+        .as_ref()
+        .context("colour search without chroma planes")?;
+    let fine = [&ls.lum, &chroma[0], &chroma[1]];
+    let parent: Vec<&Gray> = match (&ls.parent, &ls.parent_chroma, m) {
+        (_, _, 0) => Vec::new(),
+        (Some((p, _)), Some(pc), _) => vec![p, &pc[0], &pc[1]],
+        _ => bail!("colour search without parent chroma planes"),
+    };
+    let (r, pr) = (n / 2, m / 2);
+    let dims = 3 * (n * n + if parent.is_empty() { 0 } else { m * m });
+    let mut out = Vec::with_capacity(positions.len() * dims);
+    for p in positions {
+        let (x, y) = (p[0] as usize, p[1] as usize);
+        for plane in fine {
+            for yy in y - r..=y + r {
+                out.extend_from_slice(&plane.row(yy)[x - r..=x + r]);
+            }
+        }
+        for plane in &parent {
+            let (px, py) = (x / 2, y / 2);
+            for yy in py - pr..=py + pr {
+                out.extend_from_slice(&plane.row(yy)[px - pr..=px + pr]);
+            }
+        }
+    }
+    Ok(out)
 }
 
 fn align_down(v: usize, a: usize) -> usize {
@@ -454,14 +512,30 @@ pub fn synthesize(
     };
 
     // Per-level samples (texture mixing replaces some).
+    let chroma_pyr: Option<[Pyramid; 2]> = cfg.colour_search.then(|| {
+        chroma_planes(sample)
+            .map(|g| pyramid::pyramid(&g, holes_defined.as_deref(), levels + 1, false))
+    });
     let level_sample = |l: usize| -> LevelSample {
         if let Some((_, img)) = cfg.level_samples.iter().find(|(k, _)| *k == l) {
             let lum = imaging::luminance(img);
             let parent = pyramid::downsample(&lum, None, false);
+            let (chroma, parent_chroma) = if cfg.colour_search {
+                let c = chroma_planes(img);
+                let pc = [
+                    pyramid::downsample(&c[0], None, false),
+                    pyramid::downsample(&c[1], None, false),
+                ];
+                (Some(c), Some(pc))
+            } else {
+                (None, None)
+            };
             LevelSample {
                 lum,
                 defined: None,
                 parent: Some((parent, None)),
+                chroma,
+                parent_chroma,
             }
         } else {
             let (g, d) = sample_pyr[l].clone();
@@ -469,6 +543,12 @@ pub fn synthesize(
                 lum: g,
                 defined: d,
                 parent: Some(sample_pyr[l + 1].clone()),
+                chroma: chroma_pyr
+                    .as_ref()
+                    .map(|c| [c[0][l].0.clone(), c[1][l].0.clone()]),
+                parent_chroma: chroma_pyr
+                    .as_ref()
+                    .map(|c| [c[0][l + 1].0.clone(), c[1][l + 1].0.clone()]),
             }
         }
     };
@@ -487,6 +567,9 @@ pub fn synthesize(
         let ls = level_sample(l);
         let (lw, lh) = level_size(cw, ch, l);
         let mut canvas = Canvas::new(lw, lh, cfg.tileable);
+        if cfg.colour_search {
+            canvas = canvas.with_chroma();
+        }
         // Known pixels of this level.
         if let Some(p) = placement {
             let mask = &canvas_mask_pyr[l];
@@ -499,9 +582,7 @@ pub fn synthesize(
                         continue;
                     }
                     let (sx, sy) = (x - cx0 + sx0, y - cy0 + sy0);
-                    canvas.lum[i] = ls.lum.get(sx, sy);
-                    canvas.defined[i] = true;
-                    canvas.copy[i] = [sx as u32, sy as u32];
+                    set_pixel(&mut canvas, i, &ls, sx, sy);
                 }
             }
         } else {
@@ -511,9 +592,7 @@ pub fn synthesize(
                     rng.random_range(0..ls.lum.width),
                     rng.random_range(0..ls.lum.height),
                 );
-                canvas.lum[i] = ls.lum.get(sx, sy);
-                canvas.defined[i] = true;
-                canvas.copy[i] = [sx as u32, sy as u32];
+                set_pixel(&mut canvas, i, &ls, sx, sy);
             }
         }
 
@@ -555,6 +634,13 @@ pub fn synthesize(
             );
         }
         let build_started = Instant::now();
+        let colour = if cfg.colour_search {
+            let lm = if coarsest { 0 } else { m };
+            let layout = Layout::new(3 * n * n, 3 * lm * lm);
+            Some((layout, colour_vectors(&ls, &positions, n, lm)?))
+        } else {
+            None
+        };
         backend.load_level(&LevelData {
             level: l,
             geometry,
@@ -573,6 +659,7 @@ pub fn synthesize(
                 } else {
                     0
                 }) as u64,
+            colour_vectors: colour.as_ref().map(|(l, v)| (*l, v.as_slice())),
         })?;
         let build_seconds = build_started.elapsed().as_secs_f64();
 
@@ -580,7 +667,8 @@ pub fn synthesize(
         let stats = fill_level(
             &mut canvas,
             parent_canvas,
-            &ls.lum,
+            &ls,
+            colour.as_ref().map(|(l, _)| *l),
             &positions,
             &geometry,
             cfg,
@@ -692,10 +780,23 @@ struct LevelStats {
 /// Fills every undefined pixel of `canvas` (Stahlhut §4): pop a deterministic
 /// batch of blocks from the queue, search, copy, re-key the neighbours.
 #[allow(clippy::too_many_arguments)]
+/// Sets canvas pixel `i` to sample pixel (sx, sy) and records it in the copy map.
+fn set_pixel(canvas: &mut Canvas, i: usize, ls: &LevelSample, sx: usize, sy: usize) {
+    canvas.lum[i] = ls.lum.get(sx, sy);
+    canvas.defined[i] = true;
+    canvas.copy[i] = [sx as u32, sy as u32];
+    if let (Some([cb, cr]), Some(src)) = (canvas.chroma.as_mut(), ls.chroma.as_ref()) {
+        cb[i] = src[0].get(sx, sy);
+        cr[i] = src[1].get(sx, sy);
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
 fn fill_level(
     canvas: &mut Canvas,
     parent: Option<&Canvas>,
-    sample: &Gray,
+    sample: &LevelSample,
+    colour_layout: Option<Layout>,
     positions: &[[u32; 2]],
     geometry: &Geometry,
     cfg: &Config,
@@ -733,7 +834,7 @@ fn fill_level(
     } else {
         Shape::Symmetric
     };
-    let layout = geometry.layout();
+    let layout = colour_layout.unwrap_or_else(|| geometry.layout());
     let dims = layout.dims();
     let (mut values, mut mask) = (vec![0u8; dims], vec![0u8; dims]);
     let mut stats = LevelStats {
@@ -744,9 +845,10 @@ fn fill_level(
     // Windows of blocks in one batch must not overlap, so the batch's result does
     // not depend on the order of its copies (DESIGN §3.4).
     let reach = n as isize;
+    let wrap = canvas.wrap;
     let overlaps = |a: (isize, isize), c: (isize, isize)| -> bool {
         let (mut dx, mut dy) = ((a.0 - c.0).abs(), (a.1 - c.1).abs());
-        if canvas.wrap {
+        if wrap {
             dx = dx.min(w as isize - dx);
             dy = dy.min(h as isize - dy);
         }
@@ -822,10 +924,7 @@ fn fill_level(
                     }
                     let k = y * w + x;
                     if scanline || !canvas.defined[k] {
-                        let (sx, sy) = (rx + i, ry + j);
-                        canvas.lum[k] = sample.get(sx, sy);
-                        canvas.defined[k] = true;
-                        canvas.copy[k] = [sx as u32, sy as u32];
+                        set_pixel(canvas, k, sample, rx + i, ry + j);
                     }
                 }
             }

@@ -295,3 +295,64 @@ fn l2_metric_and_weights_run_and_are_deterministic() {
     assert_eq!(a.image, b.image);
     assert_copy_map_consistent(&a, &sample);
 }
+
+#[test]
+fn colour_search_tells_apart_colours_of_equal_luminance() {
+    // Left half green, right half red, both of luminance 95; a hole in the red half.
+    let (w, h) = (96usize, 64usize);
+    let (green, red) = ([50u8, 127, 50], [200u8, 50, 50]);
+    assert_eq!(imaging::luma(50, 127, 50), imaging::luma(200, 50, 50));
+    let mut rgb = Vec::with_capacity(w * h * 3);
+    for _y in 0..h {
+        for x in 0..w {
+            rgb.extend_from_slice(if x < w / 2 { &green } else { &red });
+        }
+    }
+    let sample = ColorImage::from_vec(w, h, rgb);
+    let holes: Vec<bool> = (0..w * h)
+        .map(|i| (66..80).contains(&(i % w)) && (20..40).contains(&(i / w)))
+        .collect();
+    let fill = Mode::Fill {
+        holes: holes.clone(),
+    };
+    let colour = Config {
+        colour_search: true,
+        levels: 2,
+        ..Config::default()
+    };
+    let a = run(&sample, &fill, &colour, 1);
+    let b = run(&sample, &fill, &colour, 2);
+    assert_eq!(a.image, b.image, "colour search: 1 vs 2 threads");
+    assert_copy_map_consistent(&a, &sample);
+    for (i, &hole) in holes.iter().enumerate() {
+        if hole {
+            assert_eq!(
+                a.image.get(i % w, i / w),
+                red,
+                "colour search filled ({}, {}) wrongly",
+                i % w,
+                i / w
+            );
+        }
+    }
+    // Luminance alone cannot tell the halves apart (all distances tie, the
+    // lowest index wins): the control fills green into the red half.
+    let lum = run(
+        &sample,
+        &fill,
+        &Config {
+            levels: 2,
+            ..Config::default()
+        },
+        2,
+    );
+    let greens = holes
+        .iter()
+        .enumerate()
+        .filter(|&(i, &hole)| hole && lum.image.get(i % w, i / w) == green)
+        .count();
+    assert!(
+        greens > 0,
+        "control: luminance search should confuse the colours"
+    );
+}

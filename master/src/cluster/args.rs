@@ -9,8 +9,9 @@ use std::time::Duration;
 use anyhow::{bail, ensure, Context, Result};
 use clap::Args;
 
-use super::hosts::{parse_worker_list, read_hosts_file, read_token_file};
+use super::hosts::{parse_worker_list, read_hosts_file_launch, read_token_file};
 use super::local::{find_worker_binary, LocalWorkers};
+use super::ssh::SshWorkers;
 use super::ClusterOptions;
 
 #[derive(Args, Debug, Clone, Default)]
@@ -28,6 +29,9 @@ pub struct ClusterArgs {
     /// Hosts file (TOML): [[worker]] entries with address = "host:port" and optional token_file.
     #[arg(long, value_name = "FILE")]
     pub hosts: Option<PathBuf>,
+    /// Launch workers over ssh on the --hosts entries with ssh = "user@host" for this run (stopped at the end).
+    #[arg(long, requires = "hosts")]
+    pub launch: bool,
     /// Start N local worker processes on 127.0.0.2, 127.0.0.3, ... for this run (stopped at the end).
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub local_workers: usize,
@@ -55,6 +59,8 @@ pub struct ClusterArgs {
 pub struct ClusterSetup {
     pub options: ClusterOptions,
     pub local: Option<LocalWorkers>,
+    /// Workers launched over ssh (`--launch`), stopped when this is dropped.
+    pub ssh: Option<SshWorkers>,
 }
 
 impl ClusterArgs {
@@ -101,8 +107,17 @@ impl ClusterArgs {
             .map(read_token_file)
             .transpose()?;
         let mut workers = parse_worker_list(&self.workers, token.as_deref())?;
+        let mut launch = Vec::new();
         if let Some(h) = &self.hosts {
-            workers.extend(read_hosts_file(h, token.as_deref())?);
+            let (running, to_launch) = read_hosts_file_launch(h, token.as_deref(), self.launch)?;
+            workers.extend(running);
+            launch = to_launch;
+        }
+        if self.launch && launch.is_empty() {
+            bail!("--launch: the hosts file has no [[worker]] entry with ssh = \"user@host\"");
+        }
+        if self.launch && self.tls_ca.is_some() {
+            bail!("--tls-ca cannot be used with --launch: launched workers serve without TLS");
         }
         let tls_ca = self
             .tls_ca
@@ -124,6 +139,16 @@ impl ClusterArgs {
         } else {
             None
         };
+        let ssh = if launch.is_empty() {
+            None
+        } else {
+            let s = SshWorkers::launch(&launch)?;
+            for k in &s.skipped {
+                eprintln!("texsyn: host {} skipped: {}", k.ssh, k.reason);
+            }
+            workers.extend(s.specs());
+            Some(s)
+        };
         let mut seen = std::collections::HashSet::new();
         for w in &workers {
             if !seen.insert(w.address.as_str()) {
@@ -140,6 +165,7 @@ impl ClusterArgs {
                 ..ClusterOptions::default()
             },
             local,
+            ssh,
         }))
     }
 }

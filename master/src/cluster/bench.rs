@@ -114,6 +114,7 @@ pub fn run(b: &ClusterBench) -> Result<()> {
         positions: &positions,
         levels: 1,
         expected_queries: (b.batch * b.batches) as u64,
+        colour_vectors: None,
     };
     let engine = Engine::default();
     let stride = geometry.layout().stride();

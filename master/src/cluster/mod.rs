@@ -28,6 +28,7 @@ pub mod hosts;
 pub mod local;
 pub mod merge;
 pub mod partition;
+pub mod ssh;
 
 use std::ops::Range;
 use std::time::{Duration, Instant};
@@ -1115,6 +1116,10 @@ impl SearchBackend for ClusterSearch {
     }
 
     fn load_level(&mut self, data: &LevelData) -> Result<()> {
+        anyhow::ensure!(
+            data.colour_vectors.is_none(),
+            "full-colour search runs on this machine only; use --search local (or lbg) with --colour-search"
+        );
         let span = tracing::info_span!("level", level = data.level);
         let _enter = span.enter();
         self.current_batch = None;

@@ -47,8 +47,7 @@ pub struct Skipped {
 /// Quotes `s` for a POSIX shell.
 fn shell_quote(s: &str) -> String {
     if !s.is_empty()
-        && s
-            .bytes()
+        && s.bytes()
             .all(|b| b.is_ascii_alphanumeric() || b"/._-+=:@,".contains(&b))
     {
         s.to_string()
@@ -144,8 +143,8 @@ pub fn check_host(spec: &LaunchSpec) -> Result<HostReport> {
         .stderr(Stdio::piped())
         .spawn()
         .context("cannot run ssh (is the OpenSSH client installed?)")?;
-    let out = output_with_timeout(child, CHECK_TIMEOUT)
-        .with_context(|| format!("ssh {}", spec.ssh))?;
+    let out =
+        output_with_timeout(child, CHECK_TIMEOUT).with_context(|| format!("ssh {}", spec.ssh))?;
     if !out.status.success() {
         bail!(
             "ssh {} failed ({}): {}",
@@ -273,7 +272,10 @@ fn launch_one(spec: &LaunchSpec, report: HostReport, token: &str, log: &Path) ->
     };
     let Some(bound) = parse_listening_line(&line) else {
         worker.stop();
-        bail!("the worker on {} printed '{line}' instead of 'listening on ADDR'", spec.ssh);
+        bail!(
+            "the worker on {} printed '{line}' instead of 'listening on ADDR'",
+            spec.ssh
+        );
     };
     worker.address = format!("{}:{}", spec.host, bound.port());
     Ok(worker)
@@ -387,7 +389,10 @@ mod tests {
 
     #[test]
     fn quoting() {
-        assert_eq!(shell_quote("/usr/bin/texsyn-worker"), "/usr/bin/texsyn-worker");
+        assert_eq!(
+            shell_quote("/usr/bin/texsyn-worker"),
+            "/usr/bin/texsyn-worker"
+        );
         assert_eq!(shell_quote("a b'c"), "'a b'\\''c'");
     }
 }
