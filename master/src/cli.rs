@@ -48,6 +48,16 @@ pub enum Command {
     Synth(SynthArgs),
     /// Benchmarks: the paper's configurations end to end.
     Bench(BenchArgs),
+    /// Search cluster tools.
+    #[command(subcommand)]
+    Cluster(ClusterCommand),
+}
+
+#[derive(Subcommand, Debug)]
+pub enum ClusterCommand {
+    /// Table of the workers: version, cores, threads, load, calibrated throughput, memory in use.
+    #[command(after_help = "Example: texsyn cluster status --hosts hosts.toml --token-file token")]
+    Status(crate::cluster::status::StatusArgs),
 }
 
 #[derive(Args, Debug, Clone)]
@@ -500,6 +510,7 @@ pub fn run(cli: Cli) -> Result<()> {
             )
         }
         Command::Bench(a) => crate::benchmark::run(&a),
+        Command::Cluster(ClusterCommand::Status(a)) => crate::cluster::status::run(&a),
     }
 }
 

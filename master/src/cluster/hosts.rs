@@ -317,4 +317,32 @@ mod tests {
         std::fs::write(dir.path().join("empty"), "  \n").unwrap();
         assert!(read_token_file(&dir.path().join("empty")).is_err());
     }
+
+    #[test]
+    fn launch_entries() {
+        let dir = tempfile::tempdir().unwrap();
+        let hosts = dir.path().join("hosts.toml");
+        std::fs::write(
+            &hosts,
+            "[[worker]]\naddress = \"10.0.0.1:7878\"\n\n[[worker]]\naddress = \"10.0.0.2\"\nssh = \"me@10.0.0.2\"\nbinary = \"/opt/texsyn-worker\"\nthreads = 3\nssh_options = [\"-F\", \"cfg\"]\n\n[[worker]]\naddress = \"10.0.0.3:9000\"\nssh = \"10.0.0.3\"\nport = 7000\n",
+        )
+        .unwrap();
+        let (running, launch) = read_hosts_file_launch(&hosts, None, true).unwrap();
+        assert_eq!(running.len(), 1);
+        assert_eq!(launch.len(), 2);
+        assert_eq!(launch[0].host, "10.0.0.2");
+        assert_eq!(launch[0].port, 0);
+        assert_eq!(launch[0].threads, Some(3));
+        assert_eq!(launch[0].ssh_options, vec!["-F", "cfg"]);
+        assert_eq!(launch[1].port, 7000);
+        assert_eq!(launch[1].binary, "texsyn-worker");
+        // Without --launch a bare host is not a worker address.
+        assert!(read_hosts_file(&hosts, None).is_err());
+        std::fs::write(
+            &hosts,
+            "[[worker]]\naddress = \"a\"\nssh = \"-oProxyCommand=x\"\n",
+        )
+        .unwrap();
+        assert!(read_hosts_file_launch(&hosts, None, true).is_err());
+    }
 }

@@ -29,6 +29,7 @@ pub mod local;
 pub mod merge;
 pub mod partition;
 pub mod ssh;
+pub mod status;
 
 use std::ops::Range;
 use std::time::{Duration, Instant};
