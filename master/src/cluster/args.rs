@@ -139,12 +139,14 @@ impl ClusterArgs {
         } else {
             None
         };
+        let mut skipped_hosts = Vec::new();
         let ssh = if launch.is_empty() {
             None
         } else {
             let s = SshWorkers::launch(&launch)?;
             for k in &s.skipped {
                 eprintln!("texsyn: host {} skipped: {}", k.ssh, k.reason);
+                skipped_hosts.push((k.ssh.clone(), k.reason.clone()));
             }
             workers.extend(s.specs());
             Some(s)
@@ -158,6 +160,7 @@ impl ClusterArgs {
         Ok(Some(ClusterSetup {
             options: ClusterOptions {
                 workers,
+                skipped_hosts,
                 tls_ca,
                 require_cluster: self.require_cluster,
                 master_share: self.master_share,

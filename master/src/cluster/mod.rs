@@ -56,6 +56,8 @@ use conn::{block_on, Client, SearchStream, WorkerInfo};
 #[derive(Clone)]
 pub struct ClusterOptions {
     pub workers: Vec<WorkerSpec>,
+    /// Hosts of a `--launch` that were skipped, with the reason (for the report).
+    pub skipped_hosts: Vec<(String, String)>,
     /// PEM CA certificate that signed the workers' TLS certificates; TLS is on
     /// when this is set (the host part of each address is the server name).
     pub tls_ca: Option<Vec<u8>>,
@@ -108,6 +110,7 @@ impl Default for ClusterOptions {
     fn default() -> Self {
         Self {
             workers: Vec::new(),
+            skipped_hosts: Vec::new(),
             tls_ca: None,
             require_cluster: false,
             master_share: false,
@@ -1231,6 +1234,12 @@ impl SearchBackend for ClusterSearch {
                 "seconds": self.master.stats.search_seconds,
             },
             "local_fallback_levels": self.local_levels,
+            "skipped_hosts": self
+                .opts
+                .skipped_hosts
+                .iter()
+                .map(|(host, reason)| serde_json::json!({"ssh": host, "reason": reason}))
+                .collect::<Vec<_>>(),
             "epochs": self.epoch,
             "events": self.events,
         })
