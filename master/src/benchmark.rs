@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use texsyn_worker::{
-    Codebook, Engine, Geometry, Hit, LbgConfig, Params, Plane, QueryBatch, Sample, VectorSpace,
+    Codebook, Engine, Geometry, Hit, LbgConfig, OwnedPlane, Params, QueryBatch, Sample, VectorSpace,
 };
 
 use crate::cli::{existing_dir, BenchArgs};
@@ -153,34 +153,6 @@ pub(crate) fn run(a: &BenchArgs) -> Result<()> {
 }
 
 // ---------------------------------------------------------------- bench lbg
-
-/// An owned copy of a plane (the level data the synthesis lends is borrowed).
-struct OwnedPlane {
-    width: usize,
-    height: usize,
-    pixels: Vec<u8>,
-    defined: Option<Vec<u8>>,
-}
-
-impl OwnedPlane {
-    fn of(p: &Plane) -> Self {
-        Self {
-            width: p.width,
-            height: p.height,
-            pixels: p.pixels.to_vec(),
-            defined: p.defined.map(<[u8]>::to_vec),
-        }
-    }
-
-    fn plane(&self) -> Result<Plane<'_>> {
-        Ok(Plane::new(
-            self.width,
-            self.height,
-            &self.pixels,
-            self.defined.as_deref(),
-        )?)
-    }
-}
 
 /// One level of an exhaustive run: its reference data, every query batch and
 /// the exact answers.
@@ -355,8 +327,8 @@ fn run_lbg(a: &BenchArgs) -> Result<()> {
         );
         for l in &rec.levels {
             let sample_planes = Sample {
-                fine: l.fine.plane()?,
-                parent: l.parent.as_ref().map(OwnedPlane::plane).transpose()?,
+                fine: l.fine.view(),
+                parent: l.parent.as_ref().map(OwnedPlane::view),
             };
             let n = l.positions.len() as u64;
             let space =

@@ -241,6 +241,37 @@ impl<'a> Plane<'a> {
     }
 }
 
+/// An owned copy of a [`Plane`], for holders that outlive the borrowed level
+/// data (the cluster's level state, benchmarks).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct OwnedPlane {
+    pub width: usize,
+    pub height: usize,
+    pub pixels: Vec<u8>,
+    pub defined: Option<Vec<u8>>,
+}
+
+impl OwnedPlane {
+    pub fn of(p: &Plane) -> Self {
+        Self {
+            width: p.width,
+            height: p.height,
+            pixels: p.pixels.to_vec(),
+            defined: p.defined.map(<[u8]>::to_vec),
+        }
+    }
+
+    /// The plane borrowed back (it was valid when copied).
+    pub fn view(&self) -> Plane<'_> {
+        Plane {
+            width: self.width,
+            height: self.height,
+            pixels: &self.pixels,
+            defined: self.defined.as_deref(),
+        }
+    }
+}
+
 /// The sample planes a level's reference vectors come from: the level itself and,
 /// except on the coarsest level, its parent.
 #[derive(Debug, Clone, Copy)]

@@ -12,6 +12,8 @@ pub mod service;
 
 pub use error::{EngineError, Result};
 pub use kernel::{distance, Kernel, Params};
-pub use layout::{Geometry, Layout, Metric, Plane, QueryBatch, Sample, VectorSpace, Weights};
+pub use layout::{
+    Geometry, Layout, Metric, OwnedPlane, Plane, QueryBatch, Sample, VectorSpace, Weights,
+};
 pub use lbg::{Codebook, LbgConfig, LbgStats};
 pub use search::{merge_best, merge_topk, Engine, Hit};

@@ -40,7 +40,7 @@ use texsyn_proto::v1 as pb;
 use texsyn_proto::PROTOCOL_VERSION;
 use texsyn_worker::service::{geometry_to_proto, plane_to_proto};
 use texsyn_worker::{
-    Engine, Geometry, Hit, Layout, Params, Plane, QueryBatch, Sample, VectorSpace,
+    Engine, Geometry, Hit, Layout, OwnedPlane, Params, QueryBatch, Sample, VectorSpace,
 };
 use tracing::Instrument;
 
@@ -211,33 +211,6 @@ struct LevelState {
     rebalanced: bool,
     /// Longest Assign build time of the last partition, in seconds.
     assign_seconds: f64,
-}
-
-struct OwnedPlane {
-    width: usize,
-    height: usize,
-    pixels: Vec<u8>,
-    defined: Option<Vec<u8>>,
-}
-
-impl OwnedPlane {
-    fn from(p: &Plane) -> Self {
-        Self {
-            width: p.width,
-            height: p.height,
-            pixels: p.pixels.to_vec(),
-            defined: p.defined.map(<[u8]>::to_vec),
-        }
-    }
-
-    fn view(&self) -> Plane<'_> {
-        Plane {
-            width: self.width,
-            height: self.height,
-            pixels: &self.pixels,
-            defined: self.defined.as_deref(),
-        }
-    }
 }
 
 impl LevelState {
@@ -1131,8 +1104,8 @@ impl SearchBackend for ClusterSearch {
             level: data.level,
             geometry: data.geometry,
             params: data.params,
-            fine: OwnedPlane::from(&data.sample.fine),
-            parent: data.sample.parent.as_ref().map(OwnedPlane::from),
+            fine: OwnedPlane::of(&data.sample.fine),
+            parent: data.sample.parent.as_ref().map(OwnedPlane::of),
             positions: data.positions.to_vec(),
             expected_queries: data.expected_queries,
             queries: 0,
