@@ -25,6 +25,25 @@ struct Case {
     levels: usize,
 }
 
+impl Case {
+    /// The configuration and mode of this case with batch size `batch`.
+    fn run(&self, batch: usize) -> (Config, Mode) {
+        let cfg = Config {
+            block: self.block,
+            neighbourhood: self.neighbourhood,
+            levels: self.levels,
+            batch,
+            ..Config::default()
+        };
+        let mode = Mode::Synth {
+            width: self.size,
+            height: self.size,
+            method: SynthMethod::Grow,
+        };
+        (cfg, mode)
+    }
+}
+
 const CASES: [Case; 2] = [
     Case {
         name: "a",
@@ -96,18 +115,7 @@ pub(crate) fn run(a: &BenchArgs) -> Result<()> {
     );
     for case in which {
         let sample = imaging::load_color(&dir.join(case.file))?;
-        let cfg = Config {
-            block: case.block,
-            neighbourhood: case.neighbourhood,
-            levels: case.levels,
-            batch: a.batch,
-            ..Config::default()
-        };
-        let mode = Mode::Synth {
-            width: case.size,
-            height: case.size,
-            method: SynthMethod::Grow,
-        };
+        let (cfg, mode) = case.run(a.batch);
         let reps = if case.name == "a" { a.reps.max(1) } else { 1 };
         let mut best: Option<synth::Output> = None;
         for _ in 0..reps {
@@ -290,18 +298,7 @@ fn run_lbg(a: &BenchArgs) -> Result<()> {
     let mut exhaustive_b: Option<synth::Output> = None;
     for case in &CASES {
         let sample = imaging::load_color(&dir.join(case.file))?;
-        let cfg = Config {
-            block: case.block,
-            neighbourhood: case.neighbourhood,
-            levels: case.levels,
-            batch: a.batch,
-            ..Config::default()
-        };
-        let mode = Mode::Synth {
-            width: case.size,
-            height: case.size,
-            method: SynthMethod::Grow,
-        };
+        let (cfg, mode) = case.run(a.batch);
         let mut rec = Recorder {
             inner: LocalSearch::new(engine),
             levels: Vec::new(),

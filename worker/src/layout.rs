@@ -493,6 +493,22 @@ impl VectorSpace {
         self.len == 0
     }
 
+    /// Errors unless `range` is non-empty and inside the indices held here.
+    pub fn check_range(&self, range: &std::ops::Range<u64>) -> Result<()> {
+        if range.start >= range.end {
+            return Err(EngineError::Empty("index range"));
+        }
+        if range.start < self.start() || range.end > self.end() {
+            return Err(EngineError::Range {
+                start: range.start,
+                end: range.end,
+                space_start: self.start(),
+                space_end: self.end(),
+            });
+        }
+        Ok(())
+    }
+
     /// Sample position of a global index held here (None for raw spaces).
     pub fn position(&self, index: u64) -> Option<[u32; 2]> {
         let i = index.checked_sub(self.start)? as usize;

@@ -641,17 +641,7 @@ impl Codebook {
         let started = Instant::now();
         engine.kernel().check()?;
         cfg.validate()?;
-        if range.start >= range.end {
-            return Err(EngineError::Empty("index range"));
-        }
-        if range.start < space.start() || range.end > space.end() {
-            return Err(EngineError::Range {
-                start: range.start,
-                end: range.end,
-                space_start: space.start(),
-                space_end: space.end(),
-            });
-        }
+        space.check_range(&range)?;
         let n = (range.end - range.start) as usize;
         if n > u32::MAX as usize {
             return Err(EngineError::Parameter(format!(

@@ -211,17 +211,7 @@ impl Engine {
         if queries.is_empty() {
             return Err(EngineError::Empty("query batch"));
         }
-        if range.start >= range.end {
-            return Err(EngineError::Empty("index range"));
-        }
-        if range.start < space.start() || range.end > space.end() {
-            return Err(EngineError::Range {
-                start: range.start,
-                end: range.end,
-                space_start: space.start(),
-                space_end: space.end(),
-            });
-        }
+        space.check_range(range)?;
         Ok(())
     }
 
