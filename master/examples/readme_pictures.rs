@@ -8,7 +8,7 @@ use texsyn::imaging::{self, ColorImage};
 use texsyn::search::{LocalSearch, Plan, PlannedSearch};
 use texsyn::synth::Silent;
 use texsyn::{synthesize, Config, Mode, Position, SynthMethod};
-use texsyn_worker::Engine;
+use texsyn_engine::Engine;
 
 fn run(sample: &ColorImage, mode: Mode, cfg: Config) -> Result<ColorImage> {
     let mut backend = PlannedSearch::new(Plan::Exact, LocalSearch::new(Engine::default()));

@@ -1,12 +1,12 @@
 //! `texsyn bench`: the paper's two configurations end to end (Stahlhut Table 1
-//! and §10.2, DESIGN §5), with times per level and in total.
+//! and §10.2, ARCHITECTURE §6), with times per level and in total.
 
 use std::path::PathBuf;
 
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use texsyn_worker::{
+use texsyn_engine::{
     Codebook, Engine, Geometry, Hit, LbgConfig, OwnedPlane, Params, QueryBatch, Sample, VectorSpace,
 };
 
@@ -273,7 +273,7 @@ fn run_lbg(a: &BenchArgs) -> Result<()> {
         !a.lbg_probes.is_empty() && a.lbg_probes.iter().all(|&p| p >= 1),
         "--lbg-probes needs values ≥ 1, e.g. 1,2,4"
     );
-    texsyn_worker::lbg::check_threshold(a.lbg_threshold)?;
+    texsyn_engine::lbg::check_threshold(a.lbg_threshold)?;
     let pool = {
         let mut b = rayon::ThreadPoolBuilder::new();
         if let Some(t) = a.threads {

@@ -1,4 +1,4 @@
-//! Colour from the copy map (Stahlhut §7; DESIGN §3.7, §3.10).
+//! Colour from the copy map (Stahlhut §7; ARCHITECTURE §3.7, §3.10).
 //!
 //! The search runs on luminance; at the finest level every output pixel takes
 //! the colour of the sample pixel its copy-map entry points at. Optionally a
@@ -110,7 +110,7 @@ fn from_ycc(y: i64, cb: i64, cr: i64) -> [u8; 3] {
     deltas(cb, cr).map(|d| ((base + d + (1i128 << 31)) >> 32).clamp(0, 255) as u8)
 }
 
-/// Light chroma blur at patch borders (DESIGN §3.7): pixels within `radius`
+/// Light chroma blur at patch borders (ARCHITECTURE §3.7): pixels within `radius`
 /// (Chebyshev distance) of a seam get the box mean of Cb and Cr over a
 /// `(2·radius+1)²` window (clipped at the image edge); Y is kept (±1 after
 /// rounding) and all other pixels are left untouched. Does nothing if
@@ -214,7 +214,7 @@ impl Window {
     }
 }
 
-/// The copy map as a picture (DESIGN §3.10): R = source x, G = source y, both
+/// The copy map as a picture (ARCHITECTURE §3.10): R = source x, G = source y, both
 /// scaled to 0..=255 over the sample size; B = 0. Missing entries are black.
 pub fn copy_map_image(
     copy_map: &[[u32; 2]],

@@ -1,4 +1,4 @@
-//! Images at the edges, plain slices inside (DESIGN §3, §3.1, §3.10).
+//! Images at the edges, plain slices inside (ARCHITECTURE §3, §3.1, §3.10).
 //!
 //! Loading and saving go through the `image` crate; everything else in the
 //! library sees [`ColorImage`] (8-bit RGB) and [`Gray`] (8-bit luminance) as
@@ -304,7 +304,7 @@ pub fn load_color(path: &Path) -> anyhow::Result<ColorImage> {
     Ok(ColorImage { width, height, rgb })
 }
 
-/// Loads a hole mask of exactly `width`×`height` (DESIGN §3.1): true = hole
+/// Loads a hole mask of exactly `width`×`height` (ARCHITECTURE §3.1): true = hole
 /// (luminance >= 128). Alpha composites over black, so transparent = not a hole.
 pub fn load_mask(path: &Path, width: usize, height: usize) -> anyhow::Result<Vec<bool>> {
     let img = decode(path, "mask")?;
@@ -336,7 +336,7 @@ pub fn luma(r: u8, g: u8, b: u8) -> u8 {
     ((299 * r as u32 + 587 * g as u32 + 114 * b as u32 + 500) / 1000) as u8
 }
 
-/// Luminance with BT.601 integer weights, (299R+587G+114B+500)/1000 (DESIGN §3).
+/// Luminance with BT.601 integer weights, (299R+587G+114B+500)/1000 (ARCHITECTURE §3).
 pub fn luminance(img: &ColorImage) -> Gray {
     let data = img
         .rgb

@@ -1,4 +1,4 @@
-//! LBG-accelerated search on this machine (Stahlhut §8, DESIGN §3.8): per level
+//! LBG-accelerated search on this machine (Stahlhut §8, ARCHITECTURE §3.8): per level
 //! a codebook of about √N seeds is trained over the level's reference vectors,
 //! and a query searches exactly only the partitions of its `P` nearest seeds.
 //! Approximate; the run report records per level the codebook's training
@@ -7,8 +7,8 @@
 use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
-use texsyn_worker::lbg::{check_probes, check_threshold, default_seeds, DEFAULT_MAX_ITERATIONS};
-use texsyn_worker::{Codebook, Engine, Hit, LbgConfig, QueryBatch};
+use texsyn_engine::lbg::{check_probes, check_threshold, default_seeds, DEFAULT_MAX_ITERATIONS};
+use texsyn_engine::{Codebook, Engine, Hit, LbgConfig, QueryBatch};
 
 use crate::search::{LevelData, SearchBackend};
 

@@ -1,4 +1,4 @@
-//! Canvas levels and search neighbourhoods (Stahlhut §4–§6, DESIGN §3.1–§3.4).
+//! Canvas levels and search neighbourhoods (Stahlhut §4–§6, ARCHITECTURE §3.1–§3.4).
 //!
 //! A search vector is the block's N×N neighbourhood on the canvas (masked to
 //! its defined pixels, Stahlhut §5) followed by the M×M window around the
@@ -16,7 +16,7 @@ pub struct Canvas {
     /// Source coordinate in this level's sample, valid where `defined`.
     pub copy: Vec<[u32; 2]>,
     pub wrap: bool,
-    /// Cb and Cr of each defined pixel, for full-colour search (DESIGN §3.7).
+    /// Cb and Cr of each defined pixel, for full-colour search (ARCHITECTURE §3.7).
     pub chroma: Option<[Vec<u8>; 2]>,
 }
 
@@ -86,7 +86,7 @@ pub enum Shape {
     /// The whole symmetric window, masked to defined pixels (constrained synthesis).
     Symmetric,
     /// The causal L-shape of scan-line full synthesis: rows above the block and
-    /// pixels left of it in its rows (DESIGN §3.6).
+    /// pixels left of it in its rows (ARCHITECTURE §3.6).
     Causal { block: usize },
 }
 

@@ -1,4 +1,4 @@
-//! Gaussian pyramid (Stahlhut §4, after Burt–Adelson; DESIGN §3, §3.1).
+//! Gaussian pyramid (Stahlhut §4, after Burt–Adelson; ARCHITECTURE §3, §3.1).
 //!
 //! 5-tap binomial filter [1 4 6 4 1]/16, separable, then decimation by 2
 //! keeping the even pixels: a `w`×`h` level has a `(w+1)/2`×`(h+1)/2` parent.
@@ -15,7 +15,7 @@ use crate::imaging::Gray;
 const TAPS: [u32; 5] = [1, 4, 6, 4, 1];
 
 /// Source index of tap `k` for output position `c` (input position `2c + k - 2`):
-/// clamp-to-edge, or toroidal when `wrap` (DESIGN §3.1 `--tileable`).
+/// clamp-to-edge, or toroidal when `wrap` (ARCHITECTURE §3.1 `--tileable`).
 #[inline]
 fn tap_index(c: usize, k: usize, n: usize, wrap: bool) -> usize {
     let i = (2 * c + k) as isize - 2;
@@ -101,7 +101,7 @@ pub fn downsample(g: &Gray, defined: Option<&[bool]>, wrap: bool) -> Gray {
 }
 
 /// Defined mask of the next coarser level: a coarse pixel is defined only if
-/// all of its children (the 2×2 block, clipped at the edge) are (DESIGN §3.1).
+/// all of its children (the 2×2 block, clipped at the edge) are (ARCHITECTURE §3.1).
 pub fn downsample_mask(defined: &[bool], w: usize, h: usize) -> Vec<bool> {
     assert_eq!(defined.len(), w * h, "defined mask size");
     let (cw, ch) = coarse_size(w, h);

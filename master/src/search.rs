@@ -1,10 +1,10 @@
-//! Where the nearest-neighbour search of a level happens (Stahlhut §8, DESIGN §3.8).
+//! Where the nearest-neighbour search of a level happens (Stahlhut §8, ARCHITECTURE §3.8).
 //!
 //! The synthesis talks only to [`SearchBackend`]; the local engine, the cluster
 //! and LBG plug in behind it without touching the synthesis code.
 
 use anyhow::{bail, ensure, Result};
-use texsyn_worker::{Engine, Geometry, Hit, Layout, Params, QueryBatch, Sample, VectorSpace};
+use texsyn_engine::{Engine, Geometry, Hit, Layout, Params, QueryBatch, Sample, VectorSpace};
 
 /// A level's reference data as the search sees it: the sample planes (the level
 /// and its parent), the geometry and the comparison parameters.

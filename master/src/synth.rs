@@ -1,4 +1,4 @@
-//! Multi-scale block synthesis (Stahlhut §4–§6 and §9, DESIGN §3).
+//! Multi-scale block synthesis (Stahlhut §4–§6 and §9, ARCHITECTURE §3).
 //!
 //! Levels are processed coarsest first. On each level the canvas starts with
 //! the pixels known there (the placed sample, the unmasked photo, the seed
@@ -12,8 +12,8 @@ use std::time::Instant;
 use anyhow::{bail, ensure, Context, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use texsyn_worker::layout::reference_positions;
-use texsyn_worker::{Geometry, Layout, Metric, Params, Plane, QueryBatch, Sample, Weights};
+use texsyn_engine::layout::reference_positions;
+use texsyn_engine::{Geometry, Layout, Metric, Params, Plane, QueryBatch, Sample, Weights};
 
 use crate::colour;
 use crate::imaging::{self, ColorImage, Gray};
@@ -29,7 +29,7 @@ pub enum SynthMethod {
     /// Grow outwards from a seeded sample patch placed at the canvas centre.
     Grow,
     /// The paper's scan-line full synthesis: causal L-shaped neighbourhood,
-    /// canvas initialised with noise drawn from the sample (DESIGN §3.6).
+    /// canvas initialised with noise drawn from the sample (ARCHITECTURE §3.6).
     Scanline,
 }
 
@@ -40,7 +40,7 @@ pub enum Position {
     At(usize, usize),
 }
 
-/// What to make (DESIGN §3.1).
+/// What to make (ARCHITECTURE §3.1).
 #[derive(Debug, Clone)]
 pub enum Mode {
     /// Constrained synthesis of the holes (true = fill) of the sample itself.
@@ -843,7 +843,7 @@ fn fill_level(
         search_seconds: 0.0,
     };
     // Windows of blocks in one batch must not overlap, so the batch's result does
-    // not depend on the order of its copies (DESIGN §3.4).
+    // not depend on the order of its copies (ARCHITECTURE §3.4).
     let reach = n as isize;
     let wrap = canvas.wrap;
     let overlaps = |a: (isize, isize), c: (isize, isize)| -> bool {

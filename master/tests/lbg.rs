@@ -1,4 +1,4 @@
-//! LBG in the synthesis (Stahlhut §8, DESIGN §3.8): probing every partition
+//! LBG in the synthesis (Stahlhut §8, ARCHITECTURE §3.8): probing every partition
 //! synthesises exactly what the exhaustive search does, LBG runs are
 //! deterministic across thread counts, the run report records each level's
 //! codebook, and bad LBG parameters are clear errors (library and CLI).
@@ -12,8 +12,8 @@ use texsyn::lbg::LbgSearch;
 use texsyn::search::{LevelData, LocalSearch, Plan, PlannedSearch, SearchBackend};
 use texsyn::synth::Silent;
 use texsyn::{synthesize, Config, Mode, Output, SynthMethod};
-use texsyn_worker::lbg::default_seeds;
-use texsyn_worker::{Engine, Hit, QueryBatch};
+use texsyn_engine::lbg::default_seeds;
+use texsyn_engine::{Engine, Hit, QueryBatch};
 
 fn assets() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets/textures")

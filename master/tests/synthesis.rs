@@ -1,4 +1,4 @@
-//! End-to-end properties of the synthesis on real textures (DESIGN §3):
+//! End-to-end properties of the synthesis on real textures (ARCHITECTURE §3):
 //! determinism across threads and batch sizes, fill never touching known
 //! pixels, copy-map consistency and seamless tiling.
 
@@ -8,7 +8,7 @@ use texsyn::imaging::{self, ColorImage};
 use texsyn::search::{LocalSearch, Plan, PlannedSearch};
 use texsyn::synth::Silent;
 use texsyn::{synthesize, Config, Mode, Output, Position, SynthMethod};
-use texsyn_worker::Engine;
+use texsyn_engine::Engine;
 
 fn texture(name: &str) -> ColorImage {
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -279,8 +279,8 @@ fn texture_mixing_uses_the_level_sample() {
 fn l2_metric_and_weights_run_and_are_deterministic() {
     let sample = texture("brick_color_96.png");
     let cfg = Config {
-        metric: texsyn_worker::Metric::L2,
-        weights: texsyn_worker::Weights::new(3, 1).unwrap(),
+        metric: texsyn_engine::Metric::L2,
+        weights: texsyn_engine::Weights::new(3, 1).unwrap(),
         block: 5,
         neighbourhood: 11,
         ..Config::default()

@@ -1,5 +1,5 @@
 //! The search cluster with real `texsyn-worker` processes on 127.0.0.x
-//! (DESIGN §3.5, §4): the output is bit-identical to the local engine with 1,
+//! (ARCHITECTURE §3.5, §4): the output is bit-identical to the local engine with 1,
 //! 2 and 3 workers, with unequal worker speeds, when a worker is killed or
 //! stopped mid-level, and when every worker is gone; bad calls are rejected
 //! with the right status and the worker keeps serving.
@@ -16,10 +16,10 @@ use texsyn::imaging::{self, ColorImage};
 use texsyn::search::{LevelData, LocalSearch, Plan, PlannedSearch, SearchBackend, Strategy};
 use texsyn::synth::Silent;
 use texsyn::{synthesize, Config, Mode, Output, SynthMethod};
+use texsyn_engine::{Engine, Hit, QueryBatch};
+use texsyn_proto::auth::BearerAuth;
 use texsyn_proto::v1 as pb;
 use texsyn_proto::PROTOCOL_VERSION;
-use texsyn_worker::service::BearerAuth;
-use texsyn_worker::{Engine, Hit, QueryBatch};
 
 const LEVELS: usize = 3;
 

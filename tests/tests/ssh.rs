@@ -20,7 +20,7 @@ use texsyn::imaging::{self, ColorImage};
 use texsyn::search::{LocalSearch, Plan, PlannedSearch, Strategy};
 use texsyn::synth::Silent;
 use texsyn::{synthesize, Config, Mode, Output, SynthMethod};
-use texsyn_worker::Engine;
+use texsyn_engine::Engine;
 
 const LEVELS: usize = 3;
 

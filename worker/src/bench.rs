@@ -1,5 +1,5 @@
 //! `texsyn-worker bench`: throughput of the search kernel on this machine
-//! (DESIGN §5). Prints GB/s of vector bytes scanned per core for single queries
+//! (ARCHITECTURE §6). Prints GB/s of vector bytes scanned per core for single queries
 //! and for batches, the dispatched kernel and queries per second.
 
 use std::path::PathBuf;
@@ -8,10 +8,9 @@ use std::time::{Duration, Instant};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::error::{EngineError, Result};
-use crate::kernel::{Kernel, Params};
-use crate::layout::{Layout, QueryBatch, VectorSpace};
-use crate::search::{Engine, Hit};
+use texsyn_engine::{
+    Engine, EngineError, Hit, Kernel, Layout, Params, QueryBatch, Result, VectorSpace,
+};
 
 /// What to measure.
 #[derive(Debug, Clone)]

@@ -7,13 +7,15 @@ use std::time::Duration;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use texsyn_proto::v1 as pb;
-use texsyn_proto::PROTOCOL_VERSION;
-use texsyn_worker::service::{self, best_hits, topk_hits, BearerAuth, WorkerConfig};
-use texsyn_worker::{
+use texsyn_engine::{
     merge_best, merge_topk, Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample,
     VectorSpace, Weights,
 };
+use texsyn_proto::auth::{read_token_file, BearerAuth};
+use texsyn_proto::v1 as pb;
+use texsyn_proto::wire::{best_hits, topk_hits};
+use texsyn_proto::PROTOCOL_VERSION;
+use texsyn_worker::service::{self, WorkerConfig};
 use tokio::net::TcpListener;
 use tokio::sync::oneshot;
 use tonic::codegen::InterceptedService;
@@ -126,9 +128,12 @@ impl Level {
         pb::LoadLevelRequest {
             job_id: job.into(),
             level,
-            geometry: Some(service::geometry_to_proto(&self.geometry, &self.params)),
-            sample: Some(service::plane_to_proto(&p.fine)),
-            parent: p.parent.as_ref().map(service::plane_to_proto),
+            geometry: Some(texsyn_proto::wire::geometry_to_proto(
+                &self.geometry,
+                &self.params,
+            )),
+            sample: Some(pb::Plane::from(&p.fine)),
+            parent: p.parent.as_ref().map(pb::Plane::from),
         }
     }
 
@@ -213,7 +218,7 @@ async fn cluster_of_one_two_three_workers_equals_local_engine() {
 
     // The local answer over the whole range.
     let sample = level.planes();
-    let positions = texsyn_worker::layout::reference_positions(&sample, &level.geometry).unwrap();
+    let positions = texsyn_engine::layout::reference_positions(&sample, &level.geometry).unwrap();
     let total = positions.len() as u64;
     assert!(total > 500, "the level has {total} reference vectors");
     let space = VectorSpace::build(&sample, &level.geometry, 0..total).unwrap();
@@ -300,12 +305,12 @@ async fn cluster_of_one_two_three_workers_equals_local_engine() {
 /// another worker gives the same answers, and top-k is refused.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn lbg_workers_quantise_their_ranges() {
-    use texsyn_worker::lbg::default_seeds;
+    use texsyn_engine::lbg::default_seeds;
     let level = Level::new(9, 40);
     let count = 19;
     let q = level.queries(13, count);
     let sample = level.planes();
-    let positions = texsyn_worker::layout::reference_positions(&sample, &level.geometry).unwrap();
+    let positions = texsyn_engine::layout::reference_positions(&sample, &level.geometry).unwrap();
     let total = positions.len() as u64;
     let space = VectorSpace::build(&sample, &level.geometry, 0..total).unwrap();
     let mut qb = QueryBatch::new(level.geometry.layout());
@@ -391,7 +396,7 @@ async fn wrong_or_missing_token_is_unauthenticated_and_worker_keeps_serving() {
     let dir = tempfile::tempdir().unwrap();
     let token_file = dir.path().join("token");
     std::fs::write(&token_file, "  s3cret-token\n").unwrap();
-    let token = WorkerConfig::read_token_file(&token_file).unwrap();
+    let token = read_token_file(&token_file).unwrap();
     assert_eq!(token, "s3cret-token");
     let w = Worker::start(WorkerConfig {
         token: Some(token),

@@ -9,10 +9,11 @@ use std::time::Duration;
 use anyhow::{bail, ensure, Context, Result};
 use clap::Args;
 
-use super::hosts::{parse_worker_list, read_hosts_file_launch, read_token_file};
+use super::hosts::{parse_worker_list, read_hosts_file_launch};
 use super::local::{find_worker_binary, LocalWorkers};
 use super::ssh::SshWorkers;
 use super::ClusterOptions;
+use texsyn_proto::auth::read_token_file;
 
 #[derive(Args, Debug, Clone, Default)]
 #[command(next_help_heading = "Search cluster")]

@@ -1,5 +1,5 @@
 //! `texsyn bench cluster`: the cluster on loopback against the local engine
-//! (DESIGN §4, §5). On the finest level of the paper's configuration (b)
+//! (ARCHITECTURE §4, §5). On the finest level of the paper's configuration (b)
 //! (500×500 sample, 11×11 neighbourhood, 7×7 parent window) it measures
 //!
 //! - the round-trip latency per batch (and per 1-query batch), against the
@@ -16,7 +16,7 @@ use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
 use rand::{Rng, SeedableRng};
-use texsyn_worker::{Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample, Weights};
+use texsyn_engine::{Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample, Weights};
 
 use super::{find_worker_binary, ClusterOptions, ClusterSearch, LocalWorkers};
 use crate::imaging;
@@ -58,7 +58,7 @@ fn ms(s: f64) -> String {
 /// Random query batches made from reference vectors with about a third of the
 /// hi components masked out (as on a partly synthesised canvas).
 fn make_batches(
-    space: &texsyn_worker::VectorSpace,
+    space: &texsyn_engine::VectorSpace,
     count: usize,
     per: usize,
     seed: u64,
@@ -105,7 +105,7 @@ pub fn run(b: &ClusterBench) -> Result<()> {
         fine: Plane::new(lum.width, lum.height, &lum.data, None)?,
         parent: Some(Plane::new(parent.width, parent.height, &parent.data, None)?),
     };
-    let positions = texsyn_worker::layout::reference_positions(&sample, &geometry)?;
+    let positions = texsyn_engine::layout::reference_positions(&sample, &geometry)?;
     let data = LevelData {
         level: 0,
         geometry,
@@ -138,7 +138,7 @@ pub fn run(b: &ClusterBench) -> Result<()> {
     let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build()?;
     let mut local = LocalSearch::new(engine);
     pool.install(|| local.load_level(&data))?;
-    let full = texsyn_worker::VectorSpace::build_from_positions(
+    let full = texsyn_engine::VectorSpace::build_from_positions(
         &data.sample,
         &geometry,
         &positions,

@@ -8,9 +8,10 @@ use std::future::Future;
 use std::ops::Range;
 use std::time::{Duration, Instant};
 
+use texsyn_engine::Hit;
+use texsyn_proto::auth::BearerAuth;
 use texsyn_proto::v1 as pb;
-use texsyn_worker::service::{best_hits, BearerAuth};
-use texsyn_worker::Hit;
+use texsyn_proto::wire::best_hits;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::codegen::InterceptedService;
@@ -18,7 +19,7 @@ use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint};
 use tonic::{Request, Status, Streaming};
 
 use super::hosts::{split_address, WorkerSpec};
-use super::merge::check_part;
+use texsyn_engine::{check_part, CalibrationSize};
 
 pub(crate) type Client = pb::worker_client::WorkerClient<InterceptedService<Channel, BearerAuth>>;
 
@@ -136,26 +137,6 @@ pub(crate) fn check_protocol(
         load_average: reply.load_average,
         max_message: reply.max_message_bytes,
     })
-}
-
-/// Size of the calibration's dummy search (0 = the worker's default).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct CalibrationSize {
-    pub seed: u64,
-    pub vectors: u32,
-    pub dims: u32,
-    pub queries: u32,
-}
-
-impl Default for CalibrationSize {
-    fn default() -> Self {
-        Self {
-            seed: 0x7e75,
-            vectors: 65_536,
-            dims: 106,
-            queries: 32,
-        }
-    }
 }
 
 /// Runs the worker's calibration; its throughput in reference × query pairs per second.

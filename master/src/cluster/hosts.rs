@@ -1,5 +1,5 @@
 //! Where the workers are: `--workers host:port,...`, a hosts file (TOML) and the
-//! token files that go with them (DESIGN §4 "Discovery").
+//! token files that go with them (ARCHITECTURE §4 "Discovery").
 //!
 //! ```toml
 //! # hosts.toml
@@ -14,6 +14,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, ensure, Context, Result};
+use texsyn_proto::auth::read_token_file;
 
 /// One worker the master should use.
 #[derive(Clone, PartialEq, Eq)]
@@ -70,24 +71,6 @@ pub fn split_address(address: &str) -> Result<(String, u16)> {
         "host '{host}' of worker address '{address}' is not a host name or IP address"
     );
     Ok((host.to_string(), port))
-}
-
-/// Reads a token file: its contents trimmed; empty or non-printable tokens are refused.
-pub fn read_token_file(path: &Path) -> Result<String> {
-    let raw = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read the token file {}", path.display()))?;
-    let token = raw.trim().to_string();
-    ensure!(
-        !token.is_empty(),
-        "the token file {} is empty; put the workers' shared secret in it",
-        path.display()
-    );
-    ensure!(
-        token.bytes().all(|b| b.is_ascii_graphic()),
-        "the token in {} must be printable ASCII without spaces",
-        path.display()
-    );
-    Ok(token)
 }
 
 #[derive(serde::Deserialize)]

@@ -1,4 +1,4 @@
-//! A local multi-process cluster (`--local-workers N`, DESIGN §4 "Discovery"):
+//! A local multi-process cluster (`--local-workers N`, ARCHITECTURE §4 "Discovery"):
 //! `texsyn-worker` processes on 127.0.0.2, 127.0.0.3, ... with port 0, a fresh
 //! random token in a 0600 file, their ports read from the `listening on ADDR`
 //! line. They are killed when [`LocalWorkers`] is dropped, on success and on
@@ -12,7 +12,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
-use texsyn_worker::service::parse_listening_line;
+use texsyn_proto::wire::parse_listening_line;
 
 use super::hosts::WorkerSpec;
 

@@ -1,11 +1,11 @@
-//! The search cluster, master side (Stahlhut §8 last part, DESIGN §4).
+//! The search cluster, master side (Stahlhut §8 last part, ARCHITECTURE §4).
 //!
 //! [`ClusterSearch`] is a [`SearchBackend`]: per level it sends the level images
 //! and geometry to every worker once (`LoadLevel`), cuts the level's global
 //! index range into contiguous ranges proportional to each worker's calibrated
 //! throughput (`Assign`, with a new partition epoch each time), and per batch
 //! sends the queries over one long-lived `Search` stream per worker and merges
-//! the local bests ([`merge::merge_answers`]: minimum distance, ties to the
+//! the local bests ([`texsyn_engine::merge_answers`]: minimum distance, ties to the
 //! lowest global index). The master may keep a share for itself, searched
 //! in-process with the same [`Engine`].
 //!
@@ -26,7 +26,6 @@ pub mod bench;
 pub mod conn;
 pub mod hosts;
 pub mod local;
-pub mod merge;
 pub mod partition;
 pub mod ssh;
 pub mod status;
@@ -35,19 +34,19 @@ use std::ops::Range;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use rand::{Rng, SeedableRng};
-use texsyn_proto::v1 as pb;
-use texsyn_proto::PROTOCOL_VERSION;
-use texsyn_worker::service::{geometry_to_proto, plane_to_proto};
-use texsyn_worker::{
+use rand::Rng;
+use texsyn_engine::{
     Engine, Geometry, Hit, Layout, OwnedPlane, Params, QueryBatch, Sample, VectorSpace,
 };
+use texsyn_proto::v1 as pb;
+use texsyn_proto::wire::geometry_to_proto;
+use texsyn_proto::PROTOCOL_VERSION;
 use tracing::Instrument;
 
 pub use args::{ClusterArgs, ClusterSetup};
-pub use conn::CalibrationSize;
-pub use hosts::{parse_worker_list, read_hosts_file, read_token_file, WorkerSpec};
+pub use hosts::{parse_worker_list, read_hosts_file, WorkerSpec};
 pub use local::{find_worker_binary, LocalWorkers};
+pub use texsyn_engine::CalibrationSize;
 
 use crate::search::{LevelData, SearchBackend};
 use conn::{block_on, Client, SearchStream, WorkerInfo};
@@ -235,8 +234,8 @@ impl LevelState {
             job_id: job_id.to_string(),
             level: self.level as u32,
             geometry: Some(geometry_to_proto(&self.geometry, &self.params)),
-            sample: Some(plane_to_proto(&s.fine)),
-            parent: s.parent.as_ref().map(plane_to_proto),
+            sample: Some(pb::Plane::from(&s.fine)),
+            parent: s.parent.as_ref().map(pb::Plane::from),
         }
     }
 }
@@ -269,31 +268,6 @@ pub struct ClusterSearch {
     lbg_probes: u32,
 }
 
-/// Reference × query pairs per second of `engine` on this machine, measured
-/// with the same dummy search as a worker's Calibrate (in the current rayon pool).
-pub fn calibrate_local(engine: &Engine, size: CalibrationSize) -> Result<f64> {
-    let layout = Layout::checked(size.dims.max(1) as usize, 0)?;
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(size.seed);
-    let vectors = size.vectors.max(1) as usize;
-    let raw: Vec<u8> = (0..vectors * layout.dims()).map(|_| rng.random()).collect();
-    let space = VectorSpace::from_unpadded(layout, 0, &raw)?;
-    drop(raw);
-    let mut batch = QueryBatch::new(layout);
-    let mut q = vec![0u8; layout.dims()];
-    for _ in 0..size.queries.max(1) {
-        rng.fill(&mut q[..]);
-        batch.push_full(&q)?;
-    }
-    let params = Params::default();
-    let mut best = f64::INFINITY;
-    for _ in 0..2 {
-        let t = Instant::now();
-        engine.search_best(&space, 0..space.end(), &batch, &params)?;
-        best = best.min(t.elapsed().as_secs_f64());
-    }
-    Ok(vectors as f64 * f64::from(size.queries.max(1)) / best.max(1e-9))
-}
-
 /// `x` seconds as a duration, clamped to 0..=10⁶ s (never panics).
 fn capped_secs(x: f64) -> Duration {
     Duration::from_secs_f64(if x.is_finite() {
@@ -303,22 +277,6 @@ fn capped_secs(x: f64) -> Duration {
     })
 }
 
-/// The unpadded values and masks (hi part then lo part) of every query, as sent.
-fn unpadded(batch: &QueryBatch) -> (Vec<u8>, Vec<u8>) {
-    let l = batch.layout();
-    let n = batch.len();
-    let mut values = Vec::with_capacity(n * l.dims());
-    let mut masks = Vec::with_capacity(n * l.dims());
-    for q in 0..n {
-        let (v, m) = (batch.values(q), batch.mask(q));
-        values.extend_from_slice(&v[..l.hi_len]);
-        values.extend_from_slice(&v[l.hi_pad..l.hi_pad + l.lo_len]);
-        masks.extend_from_slice(&m[..l.hi_len]);
-        masks.extend_from_slice(&m[l.hi_pad..l.hi_pad + l.lo_len]);
-    }
-    (values, masks)
-}
-
 /// Queries per message that stay under a worker's message limit.
 fn queries_per_chunk(max_message: u64, dims: usize) -> usize {
     let room = max_message.saturating_sub(4096) as usize;
@@ -326,7 +284,7 @@ fn queries_per_chunk(max_message: u64, dims: usize) -> usize {
     let by_answer = room / 24;
     by_request
         .min(by_answer)
-        .clamp(1, texsyn_worker::service::MAX_QUERIES)
+        .clamp(1, texsyn_proto::wire::MAX_QUERIES)
 }
 
 impl ClusterSearch {
@@ -678,7 +636,7 @@ impl ClusterSearch {
                         lbg_probes: if self.lbg_probes == 0 || r.is_empty() {
                             0
                         } else {
-                            (self.lbg_probes as usize).min(texsyn_worker::lbg::default_seeds(
+                            (self.lbg_probes as usize).min(texsyn_engine::lbg::default_seeds(
                                 (r.end - r.start) as usize,
                             )) as u32
                         },
@@ -771,7 +729,7 @@ impl ClusterSearch {
         if let Some(r) = self.master.rate {
             return Ok(r);
         }
-        let r = calibrate_local(&self.engine, self.opts.calibration)?;
+        let r = texsyn_engine::calibrate(&self.engine, self.opts.calibration)?.pairs_per_second;
         tracing::info!(pairs_per_second = r, "master calibrated");
         self.master.rate = Some(r);
         Ok(r)
@@ -1045,7 +1003,7 @@ impl ClusterSearch {
             return Ok(Err(failures));
         }
         let refs: Vec<&[Hit]> = parts.iter().map(Vec::as_slice).collect();
-        let merged = merge::merge_answers(n, &refs);
+        let merged = texsyn_engine::merge_answers(n, &refs);
         self.batches_since_recalibration += 1;
         if let Some(l) = self.level.as_mut() {
             l.queries += n as u64;
@@ -1141,7 +1099,7 @@ impl SearchBackend for ClusterSearch {
         let span =
             tracing::debug_span!("batch", level = level.level, batch = batch_id, queries = n);
         let _enter = span.enter();
-        let (values, masks) = unpadded(batch);
+        let (values, masks) = batch.unpadded();
         let mut rounds = 0;
         loop {
             rounds += 1;
@@ -1244,36 +1202,10 @@ mod tests {
     use super::*;
 
     #[test]
-    fn unpadded_round_trips_through_a_batch() {
-        let l = Geometry::new(5, 3).unwrap().layout();
-        let dims = l.dims();
-        let v: Vec<u8> = (0..dims).map(|i| i as u8 + 1).collect();
-        let m: Vec<u8> = (0..dims).map(|i| u8::from(i % 3 != 0)).collect();
-        let mut b = QueryBatch::new(l);
-        b.push(&v, &m).unwrap();
-        b.push_full(&v).unwrap();
-        let (values, masks) = unpadded(&b);
-        assert_eq!(values.len(), 2 * dims);
-        let mut again = QueryBatch::new(l);
-        for q in 0..2 {
-            again
-                .push(
-                    &values[q * dims..(q + 1) * dims],
-                    &masks[q * dims..(q + 1) * dims],
-                )
-                .unwrap();
-        }
-        for q in 0..2 {
-            assert_eq!(again.values(q), b.values(q));
-            assert_eq!(again.mask(q), b.mask(q));
-        }
-    }
-
-    #[test]
     fn chunks_fit_the_message_limit() {
         assert_eq!(
             queries_per_chunk(64 << 20, 106),
-            texsyn_worker::service::MAX_QUERIES.min((64 << 20) / 220)
+            texsyn_proto::wire::MAX_QUERIES.min((64 << 20) / 220)
         );
         let per = queries_per_chunk(64 << 10, 106);
         assert!(per * (2 * 106 + 8) + 4096 <= 64 << 10);

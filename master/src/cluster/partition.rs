@@ -1,6 +1,6 @@
 //! The partition table: a level's global index range `0..total` cut into one
 //! contiguous range per participant, sized in proportion to the measured
-//! throughput (DESIGN §4 "Calibration"). The table only decides who searches
+//! throughput (ARCHITECTURE §4 "Calibration"). The table only decides who searches
 //! what; the merged answer does not depend on it.
 
 use std::ops::Range;

@@ -17,7 +17,7 @@ use std::process::{Child, ChildStdin, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use texsyn_worker::service::parse_listening_line;
+use texsyn_proto::wire::parse_listening_line;
 
 use super::hosts::{LaunchSpec, WorkerSpec};
 use super::local::{new_token, START_TIMEOUT};

@@ -8,7 +8,8 @@ use texsyn_proto::v1 as pb;
 use texsyn_proto::PROTOCOL_VERSION;
 
 use super::conn::{connect, within};
-use super::hosts::{parse_worker_list, read_hosts_file, read_token_file, WorkerSpec};
+use super::hosts::{parse_worker_list, read_hosts_file, WorkerSpec};
+use texsyn_proto::auth::read_token_file;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct StatusArgs {

@@ -10,9 +10,11 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
+use texsyn_engine::Kernel;
+use texsyn_proto::auth::{read_token, read_token_file, BearerAuth};
+use texsyn_proto::wire::listening_line;
 use texsyn_worker::bench::{self, BenchConfig};
 use texsyn_worker::service::{self, TlsIdentity, WorkerConfig, DEFAULT_LISTEN};
-use texsyn_worker::Kernel;
 
 #[derive(Parser)]
 #[command(
@@ -125,10 +127,7 @@ impl TryFrom<ServeArgs> for WorkerConfig {
         let token = if a.token_stdin {
             Some(read_token_stdin()?)
         } else {
-            a.token_file
-                .as_deref()
-                .map(WorkerConfig::read_token_file)
-                .transpose()?
+            a.token_file.as_deref().map(read_token_file).transpose()?
         };
         let tls = match (&a.tls_cert, &a.tls_key) {
             (Some(c), Some(k)) => Some(TlsIdentity::from_files(c, k)?),
@@ -187,12 +186,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
 fn health(a: HealthArgs) -> anyhow::Result<()> {
     use tonic_health::pb::health_check_response::ServingStatus;
     use tonic_health::pb::{health_client::HealthClient, HealthCheckRequest};
-    let token = a
-        .token_file
-        .as_deref()
-        .map(WorkerConfig::read_token_file)
-        .transpose()?;
-    let auth = service::BearerAuth::new(token.as_deref())?;
+    let token = a.token_file.as_deref().map(read_token_file).transpose()?;
+    let auth = BearerAuth::new(token.as_deref())?;
     let timeout = Duration::from_secs_f64(a.timeout.clamp(0.1, 600.0));
     let address = if a.address.contains("://") {
         a.address.clone()
@@ -233,11 +228,7 @@ fn read_token_stdin() -> anyhow::Result<String> {
     std::io::stdin()
         .read_line(&mut line)
         .context("cannot read the token from stdin")?;
-    let token = line.trim().to_string();
-    if token.is_empty() {
-        bail!("--token-stdin: the first line of stdin is empty; send the shared token on it");
-    }
-    Ok(token)
+    read_token(&line).context("--token-stdin: send the shared token on the first line of stdin")
 }
 
 /// Completes when stdin reaches end of file (read on a plain thread: stdin
@@ -280,7 +271,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         let local = listener.local_addr()?;
         tracing::info!(%local, "bound");
         let mut out = std::io::stdout().lock();
-        writeln!(out, "{}", service::listening_line(local))?;
+        writeln!(out, "{}", listening_line(local))?;
         out.flush()?;
         drop(out);
         if exit_on_stdin_close {

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 
-use crate::kernel::Kernel;
+use texsyn_engine::Kernel;
 
 /// Default listen address: loopback only, so a worker is never exposed by accident.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:7878";
@@ -118,22 +118,13 @@ pub fn default_max_memory() -> u64 {
 }
 
 impl WorkerConfig {
-    /// Reads a token file: its contents, trimmed of surrounding whitespace.
-    pub fn read_token_file(path: &Path) -> anyhow::Result<String> {
-        let raw = std::fs::read_to_string(path)
-            .with_context(|| format!("cannot read the token file {}", path.display()))?;
-        let token = raw.trim().to_string();
-        check_token(&token).with_context(|| format!("token file {}", path.display()))?;
-        Ok(token)
-    }
-
     /// Rejects inconsistent or out-of-range settings, naming what to change.
     pub fn validate(&self) -> anyhow::Result<()> {
         if self.threads == 0 || self.threads > MAX_THREADS {
             bail!("--threads {} must be in 1..={MAX_THREADS}", self.threads);
         }
         if let Some(t) = &self.token {
-            check_token(t)?;
+            texsyn_proto::auth::check_token(t)?;
         }
         if let Some(tls) = &self.tls {
             if tls.cert_pem.is_empty() || tls.key_pem.is_empty() {
@@ -158,16 +149,6 @@ impl WorkerConfig {
         self.kernel.check()?;
         Ok(())
     }
-}
-
-fn check_token(token: &str) -> anyhow::Result<()> {
-    if token.is_empty() {
-        bail!("the token is empty; put a secret in the token file");
-    }
-    if !token.bytes().all(|b| b.is_ascii_graphic()) {
-        bail!("the token must be printable ASCII without spaces (it travels in an HTTP header)");
-    }
-    Ok(())
 }
 
 #[cfg(test)]

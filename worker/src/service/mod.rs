@@ -1,4 +1,4 @@
-//! The gRPC worker (DESIGN §4, Stahlhut §8): serves the search [`Engine`] of
+//! The gRPC worker (ARCHITECTURE §4, Stahlhut §8): serves the search [`Engine`] of
 //! this crate to a master over the `texsyn.v1.Worker` protocol.
 //!
 //! A worker holds, per job, the level images the master sent and the reference
@@ -12,12 +12,9 @@
 //! anything is allocated for it: a malformed request gets a gRPC status, never a
 //! panic.
 //!
-//! [`Engine`]: crate::search::Engine
+//! [`Engine`]: texsyn_engine::Engine
 
-mod auth;
-mod client;
 mod config;
-mod convert;
 mod rpc;
 mod state;
 
@@ -33,19 +30,14 @@ use tonic::service::InterceptorLayer;
 use tonic::transport::server::TcpIncoming;
 use tonic::transport::{Identity, Server, ServerTlsConfig};
 
-pub use client::{
-    best_hits, geometry_to_proto, hit_from_proto, parse_listening_line, plane_to_proto, topk_hits,
-    BearerAuth,
-};
 pub use config::{
     default_max_memory, TlsIdentity, WorkerConfig, DEFAULT_IDLE_TIMEOUT, DEFAULT_LISTEN,
     DEFAULT_MAX_MESSAGE,
 };
-pub use convert::{MAX_JOB_ID_LEN, MAX_QUERIES, MAX_TOP_K};
 pub use rpc::WorkerService;
 
-use auth::TokenCheck;
 use state::Shared;
+use texsyn_proto::auth::TokenCheck;
 
 /// How long open connections (a master's long-lived search streams) get to
 /// finish after the shutdown signal before the server stops anyway.
@@ -77,13 +69,6 @@ pub(crate) fn size_status(status: tonic::Status) -> tonic::Status {
     } else {
         status
     }
-}
-
-/// The line printed on stdout once the listener is bound: `listening on ADDR`.
-/// A parent that started the worker with port 0 reads the real port from it
-/// (see [`parse_listening_line`]).
-pub fn listening_line(addr: std::net::SocketAddr) -> String {
-    format!("listening on {addr}")
 }
 
 /// Serves the worker on an already bound `listener` until `shutdown` completes.

@@ -3,29 +3,21 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
+use texsyn_engine::calibrate::{calibrate, CalibrationSize};
+use texsyn_engine::layout::{QueryBatch, VectorSpace, SLACK};
+use texsyn_engine::{Hit, OwnedPlane};
 use texsyn_proto::v1 as proto;
 use texsyn_proto::v1::worker_server::Worker;
 use texsyn_proto::PROTOCOL_VERSION;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
-use super::convert::{
-    check_job_id, engine_status, geometry_from_proto, invalid, OwnedPlane, MAX_QUERIES, MAX_TOP_K,
+use texsyn_proto::wire::{
+    check_job_id, engine_status, geometry_from_proto, invalid, plane_from_proto, MAX_QUERIES,
+    MAX_TOP_K,
 };
-use super::state::{Assigned, Level, Shared};
-use crate::layout::{reference_positions, Layout, QueryBatch, VectorSpace, SLACK};
-use crate::search::Hit;
 
-/// Calibration size used for a 0 in the request.
-const CAL_VECTORS: u32 = 65_536;
-const CAL_DIMS: u32 = 106;
-const CAL_QUERIES: u32 = 32;
-/// Calibration caps.
-const CAL_MAX_VECTORS: u32 = 1 << 20;
-const CAL_MAX_QUERIES: u32 = 256;
-const CAL_MAX_BYTES: u64 = 256 << 20;
+use super::state::{Assigned, Level, Shared};
 /// Upper bound of one encoded `Hit` in a `SearchResult` (tag, two varints, length).
 const HIT_WIRE_BYTES: usize = 24;
 
@@ -87,52 +79,27 @@ impl Worker for WorkerService {
         request: Request<proto::CalibrateRequest>,
     ) -> Result<Response<proto::CalibrateReply>, Status> {
         let r = request.into_inner();
-        let or = |v: u32, d: u32| if v == 0 { d } else { v };
-        let (vectors, dims, queries) = (
-            or(r.vectors, CAL_VECTORS),
-            or(r.dims, CAL_DIMS),
-            or(r.queries, CAL_QUERIES),
-        );
-        if vectors > CAL_MAX_VECTORS || queries > CAL_MAX_QUERIES {
-            return Err(invalid(format!(
-                "calibration of {vectors} vectors × {queries} queries exceeds the caps of {CAL_MAX_VECTORS} vectors and {CAL_MAX_QUERIES} queries"
-            )));
+        let size = CalibrationSize {
+            seed: r.seed,
+            vectors: r.vectors,
+            dims: r.dims,
+            queries: r.queries,
         }
-        let layout = Layout::checked(dims as usize, 0).map_err(engine_status)?;
-        let bytes = u64::from(vectors) * (layout.dims() + layout.stride()) as u64;
-        let cap = CAL_MAX_BYTES.min(self.shared.max_memory);
-        if bytes > cap {
-            return Err(invalid(format!(
-                "calibration of {vectors} vectors × {dims} dims needs {bytes} bytes; the cap is {cap}"
-            )));
-        }
+        .or_default();
+        size.check(self.shared.max_memory).map_err(engine_status)?;
         let engine = self.shared.engine;
-        let (pairs_per_second, seconds) = self
+        let c = self
             .shared
-            .run(move || -> crate::Result<(f64, f64)> {
-                let mut rng = ChaCha8Rng::seed_from_u64(r.seed);
-                let n = vectors as usize * layout.dims();
-                let raw: Vec<u8> = (0..n).map(|_| rng.random()).collect();
-                let space = VectorSpace::from_unpadded(layout, 0, &raw)?;
-                drop(raw);
-                let mut batch = QueryBatch::new(layout);
-                let mut q = vec![0u8; layout.dims()];
-                for _ in 0..queries {
-                    rng.fill(&mut q[..]);
-                    batch.push_full(&q)?;
-                }
-                let params = crate::kernel::Params::default();
-                let mut best = f64::INFINITY;
-                for _ in 0..2 {
-                    let t = Instant::now();
-                    engine.search_best(&space, 0..space.end(), &batch, &params)?;
-                    best = best.min(t.elapsed().as_secs_f64());
-                }
-                let pairs = f64::from(vectors) * f64::from(queries);
-                Ok((pairs / best.max(1e-9), best))
-            })
+            .run(move || calibrate(&engine, size))
             .await?
             .map_err(engine_status)?;
+        let (pairs_per_second, seconds) = (c.pairs_per_second, c.seconds);
+        let CalibrationSize {
+            vectors,
+            dims,
+            queries,
+            ..
+        } = size;
         self.shared.set_calibrated(pairs_per_second);
         tracing::info!(vectors, dims, queries, pairs_per_second, "calibrated");
         Ok(Response::new(proto::CalibrateReply {
@@ -148,14 +115,14 @@ impl Worker for WorkerService {
         let r = request.into_inner();
         check_job_id(&r.job_id)?;
         let (geometry, params) = geometry_from_proto(r.geometry.as_ref())?;
-        let sample = OwnedPlane::from_proto(
+        let sample = plane_from_proto(
             r.sample
                 .ok_or_else(|| invalid("the sample plane is missing"))?,
             "sample",
         )?;
         let parent = r
             .parent
-            .map(|p| OwnedPlane::from_proto(p, "parent"))
+            .map(|p| plane_from_proto(p, "parent"))
             .transpose()?;
         match (geometry.m, &parent) {
             (0, Some(_)) => {
@@ -180,28 +147,14 @@ impl Worker for WorkerService {
             )));
         }
         self.shared.begin_level(&r.job_id)?;
-        let mut level = Level {
-            level: r.level,
-            geometry,
-            params,
-            sample,
-            parent,
-            positions: Vec::new(),
-            bytes: planes,
-        };
         let t = Instant::now();
+        let number = r.level as usize;
         let level = self
             .shared
-            .run(move || -> crate::Result<Level> {
-                let mut positions = reference_positions(&level.sample(), &level.geometry)?;
-                positions.shrink_to_fit();
-                level.bytes += (positions.capacity() * std::mem::size_of::<[u32; 2]>()) as u64;
-                level.positions = positions;
-                Ok(level)
-            })
+            .run(move || Level::locate(number, geometry, params, sample, parent))
             .await?
             .map_err(engine_status)?;
-        let (total, bytes) = (level.total(), level.bytes);
+        let (total, bytes) = (level.total(), level.bytes());
         self.shared.install_level(&r.job_id, Arc::new(level));
         tracing::info!(
             job = r.job_id,
@@ -235,8 +188,11 @@ impl Worker for WorkerService {
         // LBG (lbg_probes > 0): the range is quantised into ⌈√count⌉ partitions.
         let probes = r.lbg_probes as usize;
         if probes > 0 && count > 0 {
-            crate::lbg::check_probes(probes, crate::lbg::default_seeds(count as usize))
-                .map_err(engine_status)?;
+            texsyn_engine::lbg::check_probes(
+                probes,
+                texsyn_engine::lbg::default_seeds(count as usize),
+            )
+            .map_err(engine_status)?;
         }
         let per_vector =
             (level.geometry.layout().stride() + std::mem::size_of::<[u32; 2]>()) as u64;
@@ -247,10 +203,10 @@ impl Worker for WorkerService {
             .and_then(|b| b.checked_mul(if probes > 0 { 2 } else { 1 }))
             .unwrap_or(u64::MAX);
         let max = self.shared.max_memory;
-        if need.saturating_add(level.bytes) > max {
+        if need.saturating_add(level.bytes()) > max {
             return Err(exhausted(format!(
                 "range {}..{} needs {need} bytes of vectors which, with the level's {} bytes, exceeds --max-memory {max}; assign a smaller range",
-                r.start, r.end, level.bytes
+                r.start, r.end, level.bytes()
             )));
         }
         self.shared.clear_assignment(&r.job_id, &level);
@@ -260,7 +216,7 @@ impl Worker for WorkerService {
         let engine = self.shared.engine;
         let (space, lbg) = self
             .shared
-            .run(move || -> crate::Result<_> {
+            .run(move || -> texsyn_engine::Result<_> {
                 let space = VectorSpace::build_from_positions(
                     &lv.sample(),
                     &lv.geometry,
@@ -272,12 +228,17 @@ impl Worker for WorkerService {
                 }
                 // Deterministic per (level, range): a re-assigned range is
                 // re-quantised into the same codebook on any worker.
-                let cfg = crate::lbg::LbgConfig {
-                    seed: crate::lbg::range_seed(0, lv.level, &(start..end)),
-                    ..crate::lbg::LbgConfig::default()
+                let cfg = texsyn_engine::lbg::LbgConfig {
+                    seed: texsyn_engine::lbg::range_seed(0, lv.level as u32, &(start..end)),
+                    ..texsyn_engine::lbg::LbgConfig::default()
                 };
-                let cb =
-                    crate::lbg::Codebook::train(&engine, &space, start..end, &lv.params, &cfg)?;
+                let cb = texsyn_engine::lbg::Codebook::train(
+                    &engine,
+                    &space,
+                    start..end,
+                    &lv.params,
+                    &cfg,
+                )?;
                 let placeholder = VectorSpace::from_unpadded(space.layout(), start, &[])?;
                 Ok((placeholder, Some((cb, probes))))
             })
@@ -418,7 +379,7 @@ async fn search_batch(
     let engine = shared.engine;
     let job_id = b.job_id;
     let (hits, seconds) = shared
-        .run(move || -> crate::Result<(Vec<Hit>, f64)> {
+        .run(move || -> texsyn_engine::Result<(Vec<Hit>, f64)> {
             let t = Instant::now();
             let mut q = QueryBatch::new(layout);
             for (v, m) in b.values.chunks_exact(dims).zip(b.masks.chunks_exact(dims)) {
@@ -440,7 +401,7 @@ async fn search_batch(
             } else {
                 let lists = engine.search_topk(space, range, &q, params, k)?;
                 if lists.iter().any(|l| l.len() != per_query) {
-                    return Err(crate::EngineError::Parameter(
+                    return Err(texsyn_engine::EngineError::Parameter(
                         "top-k lists of unequal length".into(),
                     ));
                 }
@@ -453,13 +414,7 @@ async fn search_batch(
     shared.touch(&job_id);
     Ok(proto::SearchResult {
         batch_id: b.batch_id,
-        hits: hits
-            .into_iter()
-            .map(|h| proto::Hit {
-                index: h.index,
-                distance: h.dist,
-            })
-            .collect(),
+        hits: hits.into_iter().map(|h| proto::Hit::from(&h)).collect(),
         per_query: per_query as u32,
         seconds,
     })

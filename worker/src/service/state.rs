@@ -8,40 +8,15 @@ use std::time::{Duration, Instant};
 
 use tonic::Status;
 
+use texsyn_engine::{Engine, OwnedLevel, VectorSpace};
+
 use super::config::WorkerConfig;
-use super::convert::OwnedPlane;
-use crate::kernel::Params;
-use crate::layout::{Geometry, Sample, VectorSpace};
-use crate::search::Engine;
 
 /// Most jobs held at once; more is RESOURCE_EXHAUSTED until one ends or expires.
 pub(crate) const MAX_JOBS: usize = 64;
 
-/// One pyramid level of a job: the images the master sent and the level's
-/// reference positions (their order is the global index).
-#[derive(Debug)]
-pub(crate) struct Level {
-    pub level: u32,
-    pub geometry: Geometry,
-    pub params: Params,
-    pub sample: OwnedPlane,
-    pub parent: Option<OwnedPlane>,
-    pub positions: Vec<[u32; 2]>,
-    pub bytes: u64,
-}
-
-impl Level {
-    pub(crate) fn sample(&self) -> Sample<'_> {
-        Sample {
-            fine: self.sample.view(),
-            parent: self.parent.as_ref().map(OwnedPlane::view),
-        }
-    }
-
-    pub(crate) fn total(&self) -> u64 {
-        self.positions.len() as u64
-    }
-}
+/// One pyramid level of a job: the images the master sent and its reference positions.
+pub(crate) type Level = OwnedLevel;
 
 /// The vectors of the range a job's current level assigned to this worker.
 #[derive(Debug)]
@@ -52,7 +27,7 @@ pub(crate) struct Assigned {
     pub space: VectorSpace,
     pub bytes: u64,
     /// LBG search of the range (`lbg_probes` > 0): its codebook and the probes.
-    pub lbg: Option<(crate::lbg::Codebook, usize)>,
+    pub lbg: Option<(texsyn_engine::lbg::Codebook, usize)>,
 }
 
 #[derive(Debug)]
@@ -64,7 +39,7 @@ struct Job {
 
 impl Job {
     fn bytes(&self) -> u64 {
-        self.level.as_ref().map_or(0, |l| l.bytes) + self.assigned.as_ref().map_or(0, |a| a.bytes)
+        self.level.as_ref().map_or(0, |l| l.bytes()) + self.assigned.as_ref().map_or(0, |a| a.bytes)
     }
 }
 
@@ -187,7 +162,7 @@ impl Shared {
         })?;
         job.last_used = Instant::now();
         match &job.level {
-            Some(l) if l.level == level => Ok(l.clone()),
+            Some(l) if l.level == level as usize => Ok(l.clone()),
             Some(l) => Err(failed(format!(
                 "job '{job_id}' has level {} loaded, not level {level}; send LoadLevel for level {level}",
                 l.level

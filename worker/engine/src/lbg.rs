@@ -1,5 +1,5 @@
 //! LBG (Linde–Buzo–Gray) vector quantisation of a reference range
-//! (Stahlhut §8, DESIGN §3.8): an approximate, much faster search.
+//! (Stahlhut §8, ARCHITECTURE §3.8): an approximate, much faster search.
 //!
 //! Training: about √N seeds are drawn from the range with the run's seed
 //! (ChaCha), every vector is assigned to its nearest seed (the same masked
@@ -35,7 +35,8 @@ use rayon::prelude::*;
 use crate::error::{EngineError, Result};
 use crate::kernel::{Params, Scan, Sink};
 use crate::layout::{AlignedBytes, Layout, Metric, QueryBatch, VectorSpace, SLACK};
-use crate::search::{merge_best, Engine, Hit};
+use crate::merge::{merge_best, Hit};
+use crate::search::Engine;
 
 /// Default relative-change threshold of the total seed displacement (Stahlhut: 5 %).
 pub const DEFAULT_THRESHOLD: f64 = 0.05;

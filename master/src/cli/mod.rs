@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{bail, ensure, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
-use texsyn_worker::{Engine, Metric, Weights};
+use texsyn_engine::{Engine, Metric, Weights};
 
 use crate::imaging::{self, ColorImage};
 use crate::lbg::LbgSearch;
@@ -124,7 +124,7 @@ pub struct Common {
     pub lbg_probes: usize,
     /// LBG: stop training when the relative change of the total seed displacement
     /// falls below this (0 < T < 1).
-    #[arg(long, default_value_t = texsyn_worker::lbg::DEFAULT_THRESHOLD)]
+    #[arg(long, default_value_t = texsyn_engine::lbg::DEFAULT_THRESHOLD)]
     pub lbg_threshold: f64,
     /// No progress bars.
     #[arg(long, short)]
@@ -221,13 +221,13 @@ pub struct BenchArgs {
     #[arg(long)]
     pub worker_binary: Option<PathBuf>,
     /// bench lbg: training threshold (relative change of the seed displacement).
-    #[arg(long, default_value_t = texsyn_worker::lbg::DEFAULT_THRESHOLD)]
+    #[arg(long, default_value_t = texsyn_engine::lbg::DEFAULT_THRESHOLD)]
     pub lbg_threshold: f64,
     /// bench lbg: training vectors per seed (0 = all vectors).
-    #[arg(long, default_value_t = texsyn_worker::lbg::DEFAULT_SAMPLE_PER_SEED)]
+    #[arg(long, default_value_t = texsyn_engine::lbg::DEFAULT_SAMPLE_PER_SEED)]
     pub lbg_sample_per_seed: usize,
     /// bench lbg: cap on training iterations.
-    #[arg(long, default_value_t = texsyn_worker::lbg::DEFAULT_MAX_ITERATIONS)]
+    #[arg(long, default_value_t = texsyn_engine::lbg::DEFAULT_MAX_ITERATIONS)]
     pub lbg_max_iterations: usize,
     /// bench lbg: also sweep training set size × iteration cap on the finest level of (b).
     #[arg(long)]

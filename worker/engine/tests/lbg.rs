@@ -1,11 +1,11 @@
-//! Properties of the LBG codebook (Stahlhut §8, DESIGN §3.8): probing every
+//! Properties of the LBG codebook (Stahlhut §8, ARCHITECTURE §3.8): probing every
 //! partition gives exactly the exhaustive answer, every vector lies in exactly
 //! one partition, training is deterministic across runs and thread counts,
 //! Hamerly pruning changes nothing, and bad input is an error.
 
 use proptest::prelude::*;
-use texsyn_worker::lbg::{check_probes, check_threshold, default_seeds};
-use texsyn_worker::{
+use texsyn_engine::lbg::{check_probes, check_threshold, default_seeds};
+use texsyn_engine::{
     distance, Codebook, Engine, Geometry, Hit, Kernel, Layout, LbgConfig, Metric, Params, Plane,
     QueryBatch, Sample, VectorSpace, Weights,
 };
@@ -237,7 +237,7 @@ fn a_sub_range_codebook_answers_with_global_indices() {
     assert_partitions_cover(&a);
     assert_partitions_cover(&b);
     let mut got = a.search(&e, &batch, a.seeds_requested()).unwrap();
-    texsyn_worker::merge_best(
+    texsyn_engine::merge_best(
         &mut got,
         &b.search(&e, &batch, b.seeds_requested()).unwrap(),
     );

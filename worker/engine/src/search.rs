@@ -1,4 +1,4 @@
-//! Exact exhaustive nearest-neighbour search (Stahlhut §7, DESIGN §3.5).
+//! Exact exhaustive nearest-neighbour search (Stahlhut §7, ARCHITECTURE §3.5).
 //!
 //! The range is cut into sub-ranges that rayon scores in parallel with one
 //! kernel pass each; the per-sub-range answers are merged by (distance, global
@@ -13,57 +13,7 @@ use rayon::prelude::*;
 use crate::error::{EngineError, Result};
 use crate::kernel::{Kernel, Params, Scan, Sink};
 use crate::layout::{QueryBatch, VectorSpace};
-
-/// One answer: a global reference index and its distance to the query.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-pub struct Hit {
-    pub index: u64,
-    pub dist: u64,
-}
-
-impl Hit {
-    /// The "nothing found yet" hit; loses against every real one.
-    pub const NONE: Hit = Hit {
-        index: u64::MAX,
-        dist: u64::MAX,
-    };
-
-    /// Ordering key: smaller distance first, then lower index.
-    pub fn key(&self) -> (u64, u64) {
-        (self.dist, self.index)
-    }
-
-    pub fn is_none(&self) -> bool {
-        *self == Hit::NONE
-    }
-}
-
-/// Merges best-1 answers of another part into `acc`, query by query
-/// (min distance, ties to the lowest index). Used for sub-ranges and workers alike.
-pub fn merge_best(acc: &mut [Hit], other: &[Hit]) {
-    for (a, b) in acc.iter_mut().zip(other) {
-        if b.key() < a.key() {
-            *a = *b;
-        }
-    }
-}
-
-/// Merges two sorted top-k lists into the best `k`, ordered by (distance, index).
-pub fn merge_topk(a: &[Hit], b: &[Hit], k: usize) -> Vec<Hit> {
-    let mut out = Vec::with_capacity(k.min(a.len() + b.len()));
-    let (mut i, mut j) = (0, 0);
-    while out.len() < k && (i < a.len() || j < b.len()) {
-        let take_a = j >= b.len() || (i < a.len() && a[i].key() <= b[j].key());
-        if take_a {
-            out.push(a[i]);
-            i += 1;
-        } else {
-            out.push(b[j]);
-            j += 1;
-        }
-    }
-    out
-}
+use crate::merge::{merge_best, merge_topk, Hit};
 
 struct BestSink {
     dist: Vec<u64>,

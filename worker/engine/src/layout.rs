@@ -1,4 +1,4 @@
-//! Neighbourhood vector layout (Stahlhut §6, DESIGN §3.2–§3.3).
+//! Neighbourhood vector layout (Stahlhut §6, ARCHITECTURE §3.2–§3.3).
 //!
 //! A reference or query vector is the N×N neighbourhood of a pixel (the *hi*
 //! part) followed by the M×M window around the parent position in the next
@@ -21,7 +21,7 @@ pub const SLACK: usize = 64;
 pub const MAX_SIDE: usize = 63;
 
 /// Distance metric between two vectors; both are computed on integers, so any
-/// summation order gives the same value (DESIGN §3.5).
+/// summation order gives the same value (ARCHITECTURE §3.5).
 #[derive(
     Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
 )]
@@ -172,6 +172,13 @@ impl Layout {
         dst[self.hi_pad..self.hi_pad + self.lo_len].copy_from_slice(&src[self.hi_len..]);
         dst[self.hi_pad + self.lo_len..self.stride()].fill(0);
     }
+
+    /// The inverse of the padding: appends the `dims()` unpadded components of
+    /// the padded vector `src` (hi part, then lo part) to `out`.
+    pub fn unpad_into(&self, src: &[u8], out: &mut Vec<u8>) {
+        out.extend_from_slice(&src[..self.hi_len]);
+        out.extend_from_slice(&src[self.hi_pad..self.hi_pad + self.lo_len]);
+    }
 }
 
 /// A borrowed u8 image plane with an optional defined-mask (non-zero = defined).
@@ -270,6 +277,11 @@ impl OwnedPlane {
             defined: self.defined.as_deref(),
         }
     }
+
+    /// Bytes held (pixels and the defined mask).
+    pub fn bytes(&self) -> u64 {
+        (self.pixels.len() + self.defined.as_ref().map_or(0, Vec::len)) as u64
+    }
 }
 
 /// The sample planes a level's reference vectors come from: the level itself and,
@@ -300,7 +312,7 @@ fn window_clear(
 }
 
 /// All reference positions of a level in scan-line order (their order is the
-/// global index that ties break on, DESIGN §3.3): every pixel whose N×N window,
+/// global index that ties break on, ARCHITECTURE §3.3): every pixel whose N×N window,
 /// and M×M parent window around (x/2, y/2), lie inside the sample and are defined.
 pub fn reference_positions(sample: &Sample, geometry: &Geometry) -> Result<Vec<[u32; 2]>> {
     if geometry.m > 0 && sample.parent.is_none() {
@@ -394,7 +406,7 @@ pub struct VectorSpace {
 }
 
 impl VectorSpace {
-    /// Builds the vectors of global indices `range` of the level (DESIGN §3.3):
+    /// Builds the vectors of global indices `range` of the level (ARCHITECTURE §3.3):
     /// a worker builds only the part it owns.
     pub fn build(
         sample: &Sample,
@@ -538,7 +550,7 @@ impl VectorSpace {
 }
 
 /// A batch of query vectors, each with its own mask of defined components
-/// (DESIGN §3.4: only masked-in components are compared).
+/// (ARCHITECTURE §3.4: only masked-in components are compared).
 #[derive(Debug, Clone)]
 pub struct QueryBatch {
     layout: Layout,
@@ -620,6 +632,23 @@ impl QueryBatch {
     pub fn mask(&self, q: usize) -> &[u8] {
         let s = self.layout.stride();
         &self.masks[q * s..(q + 1) * s]
+    }
+
+    /// The unpadded values and masks of every query, concatenated (what
+    /// [`QueryBatch::push`] took): the form queries travel in on the wire.
+    pub fn unpadded(&self) -> (Vec<u8>, Vec<u8>) {
+        self.unpadded_range(0..self.len)
+    }
+
+    /// [`QueryBatch::unpadded`] of the queries `qs` only.
+    pub fn unpadded_range(&self, qs: std::ops::Range<usize>) -> (Vec<u8>, Vec<u8>) {
+        let n = qs.len() * self.layout.dims();
+        let (mut values, mut masks) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for q in qs {
+            self.layout.unpad_into(self.values(q), &mut values);
+            self.layout.unpad_into(self.mask(q), &mut masks);
+        }
+        (values, masks)
     }
 
     /// The queries `qs` of this batch, in that order (used by LBG to search

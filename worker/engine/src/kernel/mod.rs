@@ -1,4 +1,4 @@
-//! Masked distance kernels with run-time dispatch (DESIGN §3.5, Stahlhut §7).
+//! Masked distance kernels with run-time dispatch (ARCHITECTURE §3.5, Stahlhut §7).
 //!
 //! Every kernel computes exactly the integer distance of [`distance`], the
 //! scalar reference: D = w_hi·Σ_hi f(q−v) + w_lo·Σ_lo f(q−v) over the

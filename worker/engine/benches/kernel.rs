@@ -21,7 +21,7 @@ use criterion::{
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use texsyn_worker::{Engine, Geometry, Kernel, Layout, Params, QueryBatch, VectorSpace};
+use texsyn_engine::{Engine, Geometry, Kernel, Layout, Params, QueryBatch, VectorSpace};
 
 const VECTORS: usize = 240_000;
 const DIMS: usize = 192;

@@ -1,12 +1,62 @@
-//! Merging the workers' local best answers (DESIGN §3.5, §4): per query the
-//! minimum distance, ties to the lowest global index. Distances are integers,
-//! so the merge gives the same answer whatever the number of parts, their
-//! order or how the index range was split: that is what makes an N-worker
-//! cluster bit-identical to the local engine.
+//! Merging best answers: per query the minimum distance, ties to the lowest
+//! global index (ARCHITECTURE §5). Distances are integers,
+//! so a merge gives the same answer whatever the number of parts, their order
+//! or how the index range was split. The engine merges its rayon sub-ranges
+//! with these functions and the cluster merges its workers' answers with them:
+//! that is what makes any split of the search bit-identical to one scan.
 
 use std::ops::Range;
 
-use texsyn_worker::Hit;
+/// One answer: a global reference index and its distance to the query.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub struct Hit {
+    pub index: u64,
+    pub dist: u64,
+}
+
+impl Hit {
+    /// The "nothing found yet" hit; loses against every real one.
+    pub const NONE: Hit = Hit {
+        index: u64::MAX,
+        dist: u64::MAX,
+    };
+
+    /// Ordering key: smaller distance first, then lower index.
+    pub fn key(&self) -> (u64, u64) {
+        (self.dist, self.index)
+    }
+
+    pub fn is_none(&self) -> bool {
+        *self == Hit::NONE
+    }
+}
+
+/// Merges best-1 answers of another part into `acc`, query by query
+/// (min distance, ties to the lowest index). Used for sub-ranges and workers alike.
+pub fn merge_best(acc: &mut [Hit], other: &[Hit]) {
+    for (a, b) in acc.iter_mut().zip(other) {
+        if b.key() < a.key() {
+            *a = *b;
+        }
+    }
+}
+
+/// Merges two sorted top-k lists into the best `k`, ordered by (distance, index).
+pub fn merge_topk(a: &[Hit], b: &[Hit], k: usize) -> Vec<Hit> {
+    let mut out = Vec::with_capacity(k.min(a.len() + b.len()));
+    let (mut i, mut j) = (0, 0);
+    while out.len() < k && (i < a.len() || j < b.len()) {
+        let take_a = j >= b.len() || (i < a.len() && a[i].key() <= b[j].key());
+        if take_a {
+            out.push(a[i]);
+            i += 1;
+        } else {
+            out.push(b[j]);
+            j += 1;
+        }
+    }
+    out
+}
 
 /// Best answer per query over all `parts` (each a best-1 answer per query of
 /// one part of the index range). A query no part answered gets [`Hit::NONE`].
@@ -16,11 +66,7 @@ use texsyn_worker::Hit;
 pub fn merge_answers(queries: usize, parts: &[&[Hit]]) -> Vec<Hit> {
     let mut best = vec![Hit::NONE; queries];
     for part in parts {
-        for (b, h) in best.iter_mut().zip(part.iter()) {
-            if (h.dist, h.index) < (b.dist, b.index) {
-                *b = *h;
-            }
-        }
+        merge_best(&mut best, part);
     }
     best
 }

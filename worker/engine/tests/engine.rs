@@ -3,7 +3,7 @@
 //! splits, ties to the lowest index, and bad input is an error.
 
 use proptest::prelude::*;
-use texsyn_worker::{
+use texsyn_engine::{
     distance, Engine, Geometry, Hit, Kernel, Layout, Metric, Params, Plane, QueryBatch, Sample,
     VectorSpace, Weights,
 };
@@ -173,7 +173,7 @@ proptest! {
         let mut merged = e.search_best(&space, 0..mid, &batch, &c.params).unwrap();
         if mid < n {
             let right = e.search_best(&space, mid..n, &batch, &c.params).unwrap();
-            texsyn_worker::merge_best(&mut merged, &right);
+            texsyn_engine::merge_best(&mut merged, &right);
         }
         prop_assert_eq!(merged, whole);
     }
@@ -351,7 +351,7 @@ fn built_vectors_hold_the_window_and_parent_pixels() {
         parent: Some(Plane::new(pw, ph, &ppx, None).unwrap()),
     };
     let g = Geometry::new(3, 3).unwrap();
-    let all = texsyn_worker::layout::reference_positions(&sample, &g).unwrap();
+    let all = texsyn_engine::layout::reference_positions(&sample, &g).unwrap();
     let space = VectorSpace::build(&sample, &g, 0..all.len() as u64).unwrap();
     let l = g.layout();
     for (i, p) in all.iter().enumerate() {

@@ -1,0 +1,327 @@
+//! Conversions between the engine's types and the protocol's messages, both
+//! ways, in one place (ARCHITECTURE §4.1). Everything that comes
+//! off the wire is validated here before anything is allocated for it; a bad
+//! field becomes INVALID_ARGUMENT with a message that names it.
+
+use std::net::SocketAddr;
+
+use anyhow::bail;
+use texsyn_engine::{EngineError, Geometry, Hit, Metric, OwnedPlane, Params, Plane, Weights};
+use tonic::Status;
+
+use crate::v1 as pb;
+
+/// Longest accepted job id, in bytes.
+pub const MAX_JOB_ID_LEN: usize = 128;
+/// Most queries in one search batch.
+pub const MAX_QUERIES: usize = 1 << 16;
+/// Largest `top_k` of a search batch.
+pub const MAX_TOP_K: usize = 1024;
+/// Largest side of a level plane, in pixels.
+pub const MAX_PLANE_SIDE: u32 = 1 << 16;
+
+/// INVALID_ARGUMENT with `msg`.
+pub fn invalid(msg: impl Into<String>) -> Status {
+    Status::invalid_argument(msg)
+}
+
+/// Maps an engine error: bad input is INVALID_ARGUMENT, a CPU without the
+/// configured kernel is INTERNAL.
+pub fn engine_status(e: EngineError) -> Status {
+    match e {
+        EngineError::Kernel(..) => Status::internal(e.to_string()),
+        _ => Status::invalid_argument(e.to_string()),
+    }
+}
+
+/// A job id is 1..=128 bytes of printable characters.
+pub fn check_job_id(id: &str) -> Result<(), Status> {
+    if id.is_empty() {
+        return Err(invalid("job_id is empty; give every job a non-empty id"));
+    }
+    if id.len() > MAX_JOB_ID_LEN {
+        return Err(invalid(format!(
+            "job_id has {} bytes; at most {MAX_JOB_ID_LEN} are allowed",
+            id.len()
+        )));
+    }
+    if id.chars().any(char::is_control) {
+        return Err(invalid("job_id contains control characters"));
+    }
+    Ok(())
+}
+
+/// A level plane as sent in `LoadLevel` (an all-defined mask is sent empty).
+impl From<&Plane<'_>> for pb::Plane {
+    fn from(p: &Plane<'_>) -> Self {
+        let defined = match p.defined {
+            Some(d) if d.contains(&0) => d.to_vec(),
+            _ => Vec::new(),
+        };
+        pb::Plane {
+            width: p.width as u32,
+            height: p.height as u32,
+            pixels: p.pixels.to_vec(),
+            defined,
+        }
+    }
+}
+
+/// Takes the plane's buffers (no copy) after checking its size and lengths.
+/// An all-defined mask becomes `None`.
+impl TryFrom<pb::Plane> for OwnedPlane {
+    type Error = Status;
+
+    fn try_from(p: pb::Plane) -> Result<Self, Status> {
+        if p.width == 0 || p.height == 0 {
+            return Err(invalid(format!(
+                "plane is {}×{} pixels; both sides must be ≥ 1",
+                p.width, p.height
+            )));
+        }
+        if p.width > MAX_PLANE_SIDE || p.height > MAX_PLANE_SIDE {
+            return Err(invalid(format!(
+                "plane is {}×{} pixels; each side may be at most {MAX_PLANE_SIDE}",
+                p.width, p.height
+            )));
+        }
+        let (w, h) = (p.width as usize, p.height as usize);
+        let n = w
+            .checked_mul(h)
+            .ok_or_else(|| invalid(format!("plane size {w}×{h} overflows")))?;
+        if p.pixels.len() != n {
+            return Err(invalid(format!(
+                "plane has {} pixel bytes, expected {w}×{h} = {n}",
+                p.pixels.len()
+            )));
+        }
+        if !p.defined.is_empty() && p.defined.len() != n {
+            return Err(invalid(format!(
+                "plane has {} defined-mask bytes, expected 0 (all defined) or {w}×{h} = {n}",
+                p.defined.len()
+            )));
+        }
+        let defined = (!p.defined.is_empty() && p.defined.contains(&0)).then_some(p.defined);
+        Ok(OwnedPlane {
+            width: w,
+            height: h,
+            pixels: p.pixels,
+            defined,
+        })
+    }
+}
+
+/// [`OwnedPlane::try_from`] with the plane's role (`sample`, `parent`) named in
+/// the error.
+pub fn plane_from_proto(p: pb::Plane, what: &str) -> Result<OwnedPlane, Status> {
+    OwnedPlane::try_from(p).map_err(|s| invalid(format!("{what} {}", s.message())))
+}
+
+/// Geometry and comparison parameters of a level, as sent.
+pub fn geometry_to_proto(g: &Geometry, params: &Params) -> pb::Geometry {
+    pb::Geometry {
+        neighbourhood: g.n as u32,
+        parent_window: g.m as u32,
+        weight_hi: params.weights.hi,
+        weight_lo: params.weights.lo,
+        metric: match params.metric {
+            Metric::L1 => pb::Metric::L1,
+            Metric::L2 => pb::Metric::L2,
+        } as i32,
+    }
+}
+
+/// Geometry and comparison parameters of a level, validated.
+pub fn geometry_from_proto(g: Option<&pb::Geometry>) -> Result<(Geometry, Params), Status> {
+    let g = g.ok_or_else(|| invalid("geometry is missing"))?;
+    let geometry =
+        Geometry::new(g.neighbourhood as usize, g.parent_window as usize).map_err(engine_status)?;
+    let weights = Weights::new(g.weight_hi, g.weight_lo).map_err(engine_status)?;
+    let metric = match pb::Metric::try_from(g.metric) {
+        Ok(pb::Metric::L1) => Metric::L1,
+        Ok(pb::Metric::L2) => Metric::L2,
+        Err(_) => {
+            return Err(invalid(format!(
+                "unknown metric {}; use METRIC_L1 (0) or METRIC_L2 (1)",
+                g.metric
+            )))
+        }
+    };
+    Ok((geometry, Params { metric, weights }))
+}
+
+impl From<&pb::Hit> for Hit {
+    fn from(h: &pb::Hit) -> Self {
+        Hit {
+            index: h.index,
+            dist: h.distance,
+        }
+    }
+}
+
+impl From<&Hit> for pb::Hit {
+    fn from(h: &Hit) -> Self {
+        pb::Hit {
+            index: h.index,
+            distance: h.dist,
+        }
+    }
+}
+
+/// The best-1 hits of a result to a batch of `count` queries, checked for shape
+/// (a worker with an empty range answers [`Hit::NONE`], which the merge ignores).
+pub fn best_hits(result: &pb::SearchResult, count: usize) -> anyhow::Result<Vec<Hit>> {
+    if result.per_query != 1 || result.hits.len() != count {
+        bail!(
+            "malformed best-1 answer: {} hits with per_query {} for {count} queries",
+            result.hits.len(),
+            result.per_query
+        );
+    }
+    Ok(result.hits.iter().map(Hit::from).collect())
+}
+
+/// The top-k lists of a result to a batch of `count` queries, checked for shape.
+pub fn topk_hits(result: &pb::SearchResult, count: usize) -> anyhow::Result<Vec<Vec<Hit>>> {
+    let per = result.per_query as usize;
+    if per.checked_mul(count) != Some(result.hits.len()) {
+        bail!(
+            "malformed top-k answer: {} hits with per_query {per} for {count} queries",
+            result.hits.len()
+        );
+    }
+    if per == 0 {
+        return Ok(vec![Vec::new(); count]);
+    }
+    Ok(result
+        .hits
+        .chunks_exact(per)
+        .map(|c| c.iter().map(Hit::from).collect())
+        .collect())
+}
+
+/// The line a worker prints on stdout once its listener is bound:
+/// `listening on ADDR`. A parent that started it with port 0 reads the real
+/// port from it with [`parse_listening_line`].
+pub fn listening_line(addr: SocketAddr) -> String {
+    format!("listening on {addr}")
+}
+
+/// Reads the address from a worker's `listening on ADDR` stdout line.
+pub fn parse_listening_line(line: &str) -> Option<SocketAddr> {
+    line.trim().strip_prefix("listening on ")?.parse().ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plane(w: u32, h: u32, px: usize, def: usize) -> pb::Plane {
+        pb::Plane {
+            width: w,
+            height: h,
+            pixels: vec![0; px],
+            defined: vec![1; def],
+        }
+    }
+
+    #[test]
+    fn planes_are_checked() {
+        assert!(plane_from_proto(plane(4, 3, 12, 0), "s").is_ok());
+        assert!(plane_from_proto(plane(4, 3, 12, 12), "s").is_ok());
+        for bad in [
+            plane(0, 3, 0, 0),
+            plane(4, 3, 11, 0),
+            plane(4, 3, 12, 5),
+            plane(u32::MAX, u32::MAX, 0, 0),
+        ] {
+            let e = plane_from_proto(bad, "sample").unwrap_err();
+            assert_eq!(e.code(), tonic::Code::InvalidArgument);
+            assert!(e.message().starts_with("sample plane"), "{}", e.message());
+        }
+    }
+
+    #[test]
+    fn planes_round_trip() {
+        let pixels: Vec<u8> = (0..12).collect();
+        let defined = vec![1, 1, 0, 1, 1, 1, 1, 1, 1, 1, 1, 1];
+        for mask in [None, Some(&defined[..])] {
+            let p = Plane {
+                width: 4,
+                height: 3,
+                pixels: &pixels,
+                defined: mask,
+            };
+            let back = OwnedPlane::try_from(pb::Plane::from(&p)).unwrap();
+            assert_eq!(back.view().pixels, p.pixels);
+            assert_eq!(back.view().defined, p.defined);
+        }
+        let all = vec![1u8; 12];
+        let p = Plane {
+            width: 4,
+            height: 3,
+            pixels: &pixels,
+            defined: Some(&all),
+        };
+        assert_eq!(
+            OwnedPlane::try_from(pb::Plane::from(&p)).unwrap().defined,
+            None
+        );
+    }
+
+    #[test]
+    fn job_ids_are_checked() {
+        assert!(check_job_id("job-1").is_ok());
+        assert!(check_job_id("").is_err());
+        assert!(check_job_id(&"x".repeat(129)).is_err());
+        assert!(check_job_id("a\nb").is_err());
+    }
+
+    #[test]
+    fn geometry_is_checked_and_round_trips() {
+        let g = |n, m, hi, lo, metric| pb::Geometry {
+            neighbourhood: n,
+            parent_window: m,
+            weight_hi: hi,
+            weight_lo: lo,
+            metric,
+        };
+        let (geo, params) = geometry_from_proto(Some(&g(5, 3, 1, 2, 1))).unwrap();
+        assert_eq!(geometry_to_proto(&geo, &params), g(5, 3, 1, 2, 1));
+        assert!(geometry_from_proto(None).is_err());
+        assert!(geometry_from_proto(Some(&g(4, 3, 1, 1, 0))).is_err());
+        assert!(geometry_from_proto(Some(&g(5, 2, 1, 1, 0))).is_err());
+        assert!(geometry_from_proto(Some(&g(5, 3, 0, 0, 0))).is_err());
+        assert!(geometry_from_proto(Some(&g(5, 3, 1, 1, 7))).is_err());
+    }
+
+    #[test]
+    fn listening_line_round_trips() {
+        let a: SocketAddr = "127.0.0.1:40123".parse().unwrap();
+        assert_eq!(parse_listening_line(&listening_line(a)), Some(a));
+        assert_eq!(
+            parse_listening_line("listening on [::1]:7\n"),
+            "[::1]:7".parse().ok()
+        );
+        assert_eq!(parse_listening_line("hello"), None);
+    }
+
+    #[test]
+    fn result_shapes_are_checked() {
+        let r = pb::SearchResult {
+            batch_id: 0,
+            hits: vec![
+                pb::Hit {
+                    index: 1,
+                    distance: 2
+                };
+                4
+            ],
+            per_query: 2,
+            seconds: 0.0,
+        };
+        assert_eq!(topk_hits(&r, 2).unwrap().len(), 2);
+        assert!(topk_hits(&r, 3).is_err());
+        assert!(best_hits(&r, 4).is_err());
+    }
+}

@@ -1,0 +1,27 @@
+//! texsyn's search engine: the neighbourhood vector layout, the SIMD distance
+//! kernels and the exact exhaustive search (Stahlhut §6–§8), LBG codebooks
+//! (Stahlhut §9), calibration and the merge of partial answers.
+//!
+//! This crate has no async and no network code. The master's in-process search
+//! and the worker's gRPC service both call the same [`Engine`]; nothing else in
+//! texsyn searches. See docs/ARCHITECTURE.md for where it sits.
+
+pub mod calibrate;
+pub mod error;
+pub mod kernel;
+pub mod layout;
+pub mod lbg;
+pub mod level;
+pub mod merge;
+pub mod search;
+
+pub use calibrate::{calibrate, Calibration, CalibrationSize};
+pub use error::{EngineError, Result};
+pub use kernel::{distance, Kernel, Params};
+pub use layout::{
+    Geometry, Layout, Metric, OwnedPlane, Plane, QueryBatch, Sample, VectorSpace, Weights,
+};
+pub use lbg::{Codebook, LbgConfig, LbgStats};
+pub use level::OwnedLevel;
+pub use merge::{check_part, merge_answers, merge_best, merge_topk, Hit};
+pub use search::Engine;
