@@ -6,11 +6,12 @@ pub mod cli;
 pub mod cluster;
 pub mod colour;
 pub mod imaging;
-pub mod lbg;
 pub mod neighbourhood;
 pub mod pyramid;
 pub mod queue;
 pub mod search;
 pub mod synth;
+
+pub use search::lbg;
 
 pub use synth::{synthesize, Config, Mode, Output, Position, Report, SynthMethod};

@@ -8,39 +8,28 @@ use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
 use texsyn_engine::lbg::{check_probes, check_threshold, default_seeds, DEFAULT_MAX_ITERATIONS};
-use texsyn_engine::{Codebook, Engine, Hit, LbgConfig, QueryBatch};
+use texsyn_engine::{Codebook, Engine, Hit, LbgConfig, LbgStats, QueryBatch};
 
 use crate::search::{LevelData, SearchBackend};
 
 /// Default number of partitions searched per query.
 pub const DEFAULT_PROBES: usize = 1;
 
-/// What LBG did on one level, for the run report.
+/// What LBG did on one level, for the run report: the engine's training
+/// figures plus the level, the probes and the search counters.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct LbgLevelReport {
     pub level: usize,
-    pub vectors: usize,
-    pub trained_on: usize,
-    pub seeds_requested: usize,
-    pub seeds: usize,
-    pub iterations: usize,
-    pub converged: bool,
     pub probes: usize,
-    /// Codebook training (assign/move iterations and partition copies).
-    pub train_seconds: f64,
     /// Building the level's reference vectors before training.
     pub build_seconds: f64,
-    pub largest_partition: usize,
-    pub reseeded: usize,
-    /// Vectors re-assigned against all seeds, per iteration.
-    pub rescans: Vec<u64>,
-    /// Total seed displacement per iteration.
-    pub displacement: Vec<u64>,
     pub queries: u64,
     pub search_seconds: f64,
+    #[serde(flatten)]
+    pub training: LbgStats,
 }
 
-/// LBG search with the worker's engine, in-process.
+/// LBG search with the engine, in-process.
 pub struct LbgSearch {
     engine: Engine,
     probes: usize,
@@ -149,21 +138,11 @@ impl SearchBackend for LbgSearch {
         );
         self.reports.push(LbgLevelReport {
             level: level.level,
-            vectors: s.vectors,
-            trained_on: s.trained_on,
-            seeds_requested: s.seeds_requested,
-            seeds: s.seeds,
-            iterations: s.iterations,
-            converged: s.converged,
             probes: self.probes,
-            train_seconds: s.train_seconds,
             build_seconds,
-            largest_partition: s.largest_partition,
-            reseeded: s.reseeded,
-            rescans: s.rescans.clone(),
-            displacement: s.displacement.clone(),
             queries: 0,
             search_seconds: 0.0,
+            training: s.clone(),
         });
         self.codebook = Some(cb);
         Ok(())

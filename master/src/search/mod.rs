@@ -1,0 +1,75 @@
+//! Where the nearest-neighbour search of a level happens (Stahlhut §8,
+//! ARCHITECTURE §3.8).
+//!
+//! A synthesis method talks only to [`SearchBackend`]; the local engine
+//! ([`LocalSearch`]), LBG ([`LbgSearch`]) and the cluster
+//! (`crate::cluster::ClusterSearch`) plug in behind it, side by side, and
+//! [`PlannedSearch`] routes each pyramid level to one of them.
+
+pub mod lbg;
+mod local;
+mod plan;
+
+pub use lbg::LbgSearch;
+pub use local::LocalSearch;
+pub use plan::{level_cost, Plan, PlannedSearch, Strategy};
+
+use anyhow::{ensure, Result};
+use texsyn_engine::{Geometry, Hit, Layout, Params, QueryBatch, Sample, VectorSpace};
+
+/// A level's reference data as the search sees it: the sample planes (the level
+/// and its parent), the geometry and the comparison parameters.
+pub struct LevelData<'a> {
+    pub level: usize,
+    pub geometry: Geometry,
+    pub params: Params,
+    pub sample: Sample<'a>,
+    /// All reference positions of the level in global-index order.
+    pub positions: &'a [[u32; 2]],
+    /// Pyramid levels of the run (level 0 = finest).
+    pub levels: usize,
+    /// Blocks still to be synthesised on this level (about the number of queries).
+    pub expected_queries: u64,
+    /// Full-colour search: the level's vectors gathered by the master (Y, Cb, Cr
+    /// windows per part) in this layout, instead of luminance vectors built from
+    /// `sample`. Only backends on this machine accept it.
+    pub colour_vectors: Option<(Layout, &'a [u8])>,
+}
+
+/// The level's reference vectors on this machine: luminance vectors built from
+/// the sample planes, or the master's full-colour vectors.
+pub fn level_space(level: &LevelData) -> Result<VectorSpace> {
+    let n = level.positions.len() as u64;
+    Ok(match level.colour_vectors {
+        Some((layout, raw)) => VectorSpace::from_unpadded(layout, 0, raw)?,
+        None => VectorSpace::build_from_positions(
+            &level.sample,
+            &level.geometry,
+            level.positions,
+            0..n,
+        )?,
+    })
+}
+
+/// A search strategy for one level at a time.
+pub trait SearchBackend: Send {
+    /// Short name for logs and the run report.
+    fn name(&self) -> String;
+    /// Prepares the level's reference vectors.
+    fn load_level(&mut self, level: &LevelData) -> Result<()>;
+    /// Best reference (global index, distance) per query; exact backends tie to
+    /// the lowest index.
+    fn search(&mut self, queries: &QueryBatch) -> Result<Vec<Hit>>;
+    /// Releases the level's memory.
+    fn end_level(&mut self) {}
+    /// Asks for LBG with `probes` instead of exhaustive search from the next
+    /// level on (0 = exhaustive); only backends that can quantise accept it.
+    fn set_lbg_probes(&mut self, probes: u32) -> Result<()> {
+        ensure!(probes == 0, "{} cannot search with LBG", self.name());
+        Ok(())
+    }
+    /// Backend-specific figures for the run report (workers, drops, codebooks...).
+    fn stats(&self) -> serde_json::Value {
+        serde_json::Value::Null
+    }
+}
