@@ -1,23 +1,11 @@
 //! The `texsyn` binary on good and bad input: bad input gets one clear error
 //! line and a non-zero exit, never a panic or a partial output file.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn assets() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets/textures")
-}
+use std::path::Path;
 
-fn texsyn(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_texsyn"))
-        .args(args)
-        .output()
-        .expect("run texsyn")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
+use common::{assets, s, texsyn};
 
 /// Runs a command that must fail: non-zero exit, no panic, one error line with
 /// every expected word, and no output file left behind.

@@ -3,10 +3,10 @@
 //! deterministic across thread counts, the run report records each level's
 //! codebook, and bad LBG parameters are clear errors (library and CLI).
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
 
 use anyhow::Result;
+use common::{assets, s, texsyn};
 use texsyn::imaging::{self, ColorImage};
 use texsyn::lbg::LbgSearch;
 use texsyn::search::{LevelData, LocalSearch, Plan, PlannedSearch, SearchBackend};
@@ -14,10 +14,6 @@ use texsyn::synth::Silent;
 use texsyn::{synthesize, Config, Mode, Output, SynthMethod};
 use texsyn_engine::lbg::default_seeds;
 use texsyn_engine::{Engine, Hit, QueryBatch};
-
-fn assets() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets/textures")
-}
 
 fn texture(name: &str) -> ColorImage {
     imaging::load_color(&assets().join(name)).unwrap()
@@ -168,17 +164,6 @@ fn bad_lbg_parameters_are_errors() {
             .is_err()
     );
     assert!("local,fast".parse::<Plan>().is_err());
-}
-
-fn texsyn(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_texsyn"))
-        .args(args)
-        .output()
-        .expect("run texsyn")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 #[test]
