@@ -438,14 +438,7 @@ impl Trainer<'_> {
         let mut sink = AssignSink::new(count);
         for (b, q) in seeds.iter().enumerate() {
             sink.base = (b * SEED_BLOCK) as u32;
-            let scan = Scan {
-                layout: self.layout,
-                params: self.params,
-                vectors: data,
-                count,
-                base: 0,
-                queries: q,
-            };
+            let scan = Scan::new(self.layout, self.params, data, count, 0, q);
             self.engine.kernel().scan(&scan, &mut sink);
         }
         sink
@@ -883,14 +876,7 @@ impl Codebook {
 
     fn score_seeds(&self, engine: &Engine, q: &QueryBatch, p: usize) -> Vec<Vec<(u64, u32)>> {
         let mut sink = TopSeedSink::new(q.len(), p, self.k);
-        let scan = Scan {
-            layout: self.layout,
-            params: self.params,
-            vectors: self.seed_data.as_slice(),
-            count: self.seed_rows,
-            base: 0,
-            queries: q,
-        };
+        let scan = Scan::new(self.layout, self.params, self.seed_data.as_slice(), self.seed_rows, 0, q);
         engine.kernel().scan(&scan, &mut sink);
         sink.lists
     }
@@ -903,14 +889,7 @@ impl Codebook {
             row_index: &self.row_index,
             best: vec![Hit::NONE; q.len()],
         };
-        let scan = Scan {
-            layout: self.layout,
-            params: self.params,
-            vectors: &self.data.as_slice()[r0 * s..r1 * s + SLACK],
-            count: r1 - r0,
-            base: r0 as u64,
-            queries: q,
-        };
+        let scan = Scan::new(self.layout, self.params, &self.data.as_slice()[r0 * s..r1 * s + SLACK], r1 - r0, r0 as u64, q);
         engine.kernel().scan(&scan, &mut sink);
         sink.best[0]
     }

@@ -185,14 +185,14 @@ impl Engine {
         queries: &'a QueryBatch,
         params: &Params,
     ) -> Scan<'a> {
-        Scan {
-            layout: space.layout(),
-            params: *params,
-            vectors: space.slice(r.clone()),
-            count: (r.end - r.start) as usize,
-            base: r.start,
+        Scan::new(
+            space.layout(),
+            *params,
+            space.slice(r.clone()),
+            (r.end - r.start) as usize,
+            r.start,
             queries,
-        }
+        )
     }
 
     /// Best match per query in the global index `range` of `space`.
