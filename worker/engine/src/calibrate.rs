@@ -11,7 +11,9 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::error::{EngineError, Result};
 use crate::kernel::Params;
-use crate::layout::{Layout, QueryBatch, VectorSpace};
+use crate::batch::QueryBatch;
+use crate::layout::Layout;
+use crate::space::VectorSpace;
 use crate::search::Engine;
 
 /// Most vectors a calibration may ask for.

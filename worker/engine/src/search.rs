@@ -12,7 +12,8 @@ use rayon::prelude::*;
 
 use crate::error::{EngineError, Result};
 use crate::kernel::{Kernel, Params, Scan, Sink};
-use crate::layout::{QueryBatch, VectorSpace};
+use crate::batch::QueryBatch;
+use crate::space::VectorSpace;
 use crate::merge::{merge_best, merge_topk, Hit};
 
 struct BestSink {

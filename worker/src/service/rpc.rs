@@ -4,7 +4,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use texsyn_engine::calibrate::{calibrate, CalibrationSize};
-use texsyn_engine::layout::{QueryBatch, VectorSpace, SLACK};
+use texsyn_engine::layout::SLACK;
+use texsyn_engine::{QueryBatch, VectorSpace};
 use texsyn_engine::{Hit, OwnedPlane};
 use texsyn_proto::v1 as proto;
 use texsyn_proto::v1::worker_server::Worker;

@@ -7,7 +7,9 @@
 //! once and compared with every query while it sits in registers.
 
 use crate::error::{EngineError, Result};
-use crate::layout::{AlignedBytes, Layout, Metric, QueryBatch, Weights, LANE, SLACK};
+use crate::batch::QueryBatch;
+use crate::layout::{Layout, Metric, Weights, LANE, SLACK};
+use crate::space::AlignedBytes;
 
 mod scalar;
 #[cfg(target_arch = "x86_64")]
