@@ -124,17 +124,13 @@ impl Level {
     }
 
     fn load(&self, job: &str, level: u32) -> pb::LoadLevelRequest {
-        let p = self.planes();
-        pb::LoadLevelRequest {
-            job_id: job.into(),
+        texsyn_proto::wire::load_level_request(
+            job,
             level,
-            geometry: Some(texsyn_proto::wire::geometry_to_proto(
-                &self.geometry,
-                &self.params,
-            )),
-            sample: Some(pb::Plane::from(&p.fine)),
-            parent: p.parent.as_ref().map(pb::Plane::from),
-        }
+            &self.geometry,
+            &self.params,
+            &self.planes(),
+        )
     }
 
     fn dims(&self) -> usize {
