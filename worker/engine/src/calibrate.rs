@@ -9,12 +9,12 @@ use std::time::Instant;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use crate::batch::QueryBatch;
 use crate::error::{EngineError, Result};
 use crate::kernel::Params;
-use crate::batch::QueryBatch;
 use crate::layout::Layout;
-use crate::space::VectorSpace;
 use crate::search::Engine;
+use crate::space::VectorSpace;
 
 /// Most vectors a calibration may ask for.
 pub const MAX_VECTORS: u32 = 1 << 20;

@@ -18,10 +18,10 @@ pub mod plane;
 pub mod search;
 pub mod space;
 
+pub use batch::QueryBatch;
 pub use calibrate::{calibrate, Calibration, CalibrationSize};
 pub use error::{EngineError, Result};
 pub use kernel::{distance, Kernel, Params};
-pub use batch::QueryBatch;
 pub use layout::{Geometry, Layout, Metric, Weights};
 pub use lbg::{Codebook, LbgConfig, LbgStats};
 pub use level::OwnedLevel;

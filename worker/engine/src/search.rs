@@ -10,11 +10,11 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
+use crate::batch::QueryBatch;
 use crate::error::{EngineError, Result};
 use crate::kernel::{Kernel, Params, Scan, Sink};
-use crate::batch::QueryBatch;
-use crate::space::VectorSpace;
 use crate::merge::{merge_best, merge_topk, Hit};
+use crate::space::VectorSpace;
 
 struct BestSink {
     dist: Vec<u64>,

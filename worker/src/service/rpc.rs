@@ -10,9 +10,7 @@ use texsyn_engine::lbg::{check_probes, default_seeds, range_seed};
 use texsyn_engine::{Codebook, Engine, Hit, LbgConfig, OwnedLevel, QueryBatch, VectorSpace};
 use texsyn_proto::v1 as proto;
 use texsyn_proto::v1::worker_server::Worker;
-use texsyn_proto::wire::{
-    check_job_id, engine_status, invalid, LevelLoad, MAX_QUERIES, MAX_TOP_K,
-};
+use texsyn_proto::wire::{check_job_id, engine_status, invalid, LevelLoad, MAX_QUERIES, MAX_TOP_K};
 use texsyn_proto::PROTOCOL_VERSION;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};

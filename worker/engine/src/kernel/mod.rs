@@ -6,8 +6,8 @@
 //! a whole batch of queries in one pass over the vectors: each vector is loaded
 //! once and compared with every query while it sits in registers.
 
-use crate::error::{EngineError, Result};
 use crate::batch::QueryBatch;
+use crate::error::{EngineError, Result};
 use crate::layout::{Layout, Metric, Weights, LANE, SLACK};
 use crate::space::AlignedBytes;
 

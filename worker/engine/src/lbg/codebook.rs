@@ -40,7 +40,6 @@ pub struct Codebook {
     pub(super) stats: LbgStats,
 }
 
-
 impl Codebook {
     /// Seeds (= partitions) of the codebook.
     pub fn seeds(&self) -> usize {
@@ -116,7 +115,14 @@ impl Codebook {
 
     fn score_seeds(&self, engine: &Engine, q: &QueryBatch, p: usize) -> Vec<Vec<(u64, u32)>> {
         let mut sink = TopSeedSink::new(q.len(), p, self.k);
-        let scan = Scan::new(self.layout, self.params, self.seed_data.as_slice(), self.seed_rows, 0, q);
+        let scan = Scan::new(
+            self.layout,
+            self.params,
+            self.seed_data.as_slice(),
+            self.seed_rows,
+            0,
+            q,
+        );
         engine.kernel().scan(&scan, &mut sink);
         sink.lists
     }
@@ -129,7 +135,14 @@ impl Codebook {
             row_index: &self.row_index,
             best: vec![Hit::NONE; q.len()],
         };
-        let scan = Scan::new(self.layout, self.params, &self.data.as_slice()[r0 * s..r1 * s + SLACK], r1 - r0, r0 as u64, q);
+        let scan = Scan::new(
+            self.layout,
+            self.params,
+            &self.data.as_slice()[r0 * s..r1 * s + SLACK],
+            r1 - r0,
+            r0 as u64,
+            q,
+        );
         engine.kernel().scan(&scan, &mut sink);
         sink.best[0]
     }
@@ -170,4 +183,3 @@ impl Codebook {
         Ok(parts.into_iter().flatten().collect())
     }
 }
-

@@ -193,4 +193,3 @@ pub struct LbgStats {
     /// Wall time of the training, including building the partitions.
     pub train_seconds: f64,
 }
-

@@ -152,4 +152,3 @@ impl Sink for PartSink<'_> {
         self.best[q] = b;
     }
 }
-

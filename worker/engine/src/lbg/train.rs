@@ -45,7 +45,6 @@ fn full_distance(layout: &Layout, params: &Params, a: &[u8], b: &[u8]) -> u64 {
     u64::from(params.weights.hi) * hi + u64::from(params.weights.lo) * lo
 }
 
-
 /// Training state: per vector its seed, an upper bound on the distance to it
 /// and a lower bound on the distance to every other seed (both exact right
 /// after a full assignment).
@@ -278,7 +277,6 @@ impl Trainer<'_> {
     }
 }
 
-
 impl Trainer<'_> {
     /// The training subset: `cap` ChaCha-drawn vectors in ascending order,
     /// copied into their own buffer (with slack).
@@ -337,7 +335,9 @@ impl Trainer<'_> {
                 break;
             }
             if prune {
-                stats.rescans.push(self.assign_pruned(&mut a, seeds, &new, k));
+                stats
+                    .rescans
+                    .push(self.assign_pruned(&mut a, seeds, &new, k));
             } else {
                 a = self.assign_full(&new, k);
                 stats.rescans.push(self.n as u64);
