@@ -543,9 +543,12 @@ async fn malformed_requests_get_a_status_not_a_crash() {
     w.shutdown().await;
 }
 
+/// A change that makes a good `LoadLevel` request malformed.
+type Spoil = fn(&mut pb::LoadLevelRequest);
+
 /// Every malformed `LoadLevel` (a mutation of the good request) is INVALID_ARGUMENT.
 async fn malformed_load_levels(c: &mut Client, good: impl Fn() -> pb::LoadLevelRequest) {
-    let cases: [(&str, fn(&mut pb::LoadLevelRequest)); 12] = [
+    let cases: [(&str, Spoil); 12] = [
         ("even neighbourhood", |r| {
             r.geometry.as_mut().unwrap().neighbourhood = 4
         }),
