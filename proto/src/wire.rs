@@ -6,7 +6,9 @@
 use std::net::SocketAddr;
 
 use anyhow::bail;
-use texsyn_engine::{EngineError, Geometry, Hit, Metric, OwnedPlane, Params, Plane, Weights};
+use texsyn_engine::{
+    EngineError, Geometry, Hit, Metric, OwnedLevel, OwnedPlane, Params, Plane, Sample, Weights,
+};
 use tonic::Status;
 
 use crate::v1 as pb;
@@ -148,6 +150,98 @@ pub fn geometry_from_proto(g: Option<&pb::Geometry>) -> Result<(Geometry, Params
         }
     };
     Ok((geometry, Params { metric, weights }))
+}
+
+/// The `LoadLevel` request of level `level` of job `job_id`: the geometry, the
+/// comparison parameters and the sample planes (ARCHITECTURE §4.1).
+pub fn load_level_request(
+    job_id: &str,
+    level: u32,
+    geometry: &Geometry,
+    params: &Params,
+    sample: &Sample,
+) -> pb::LoadLevelRequest {
+    pb::LoadLevelRequest {
+        job_id: job_id.to_string(),
+        level,
+        geometry: Some(geometry_to_proto(geometry, params)),
+        sample: Some(pb::Plane::from(&sample.fine)),
+        parent: sample.parent.as_ref().map(pb::Plane::from),
+    }
+}
+
+/// A validated `LoadLevel` request: the job and the pieces of its
+/// [`OwnedLevel`] (whose reference positions [`LevelLoad::locate`] computes).
+#[derive(Debug)]
+pub struct LevelLoad {
+    pub job_id: String,
+    pub level: u32,
+    pub geometry: Geometry,
+    pub params: Params,
+    pub sample: OwnedPlane,
+    /// Present exactly when the geometry has a parent window.
+    pub parent: Option<OwnedPlane>,
+}
+
+/// Checks, in this order, the job id, the geometry, the sample and parent
+/// planes, and that a parent plane is given exactly when the geometry has a
+/// parent window.
+impl TryFrom<pb::LoadLevelRequest> for LevelLoad {
+    type Error = Status;
+
+    fn try_from(r: pb::LoadLevelRequest) -> Result<Self, Status> {
+        check_job_id(&r.job_id)?;
+        let (geometry, params) = geometry_from_proto(r.geometry.as_ref())?;
+        let sample = plane_from_proto(
+            r.sample
+                .ok_or_else(|| invalid("the sample plane is missing"))?,
+            "sample",
+        )?;
+        let parent = r
+            .parent
+            .map(|p| plane_from_proto(p, "parent"))
+            .transpose()?;
+        match (geometry.m, &parent) {
+            (0, Some(_)) => {
+                return Err(invalid(
+                    "a parent plane was given but the geometry has no parent window (parent_window = 0)",
+                ))
+            }
+            (m, None) if m > 0 => {
+                return Err(invalid(format!(
+                    "the geometry has a {m}×{m} parent window but no parent plane was given"
+                )))
+            }
+            _ => {}
+        }
+        Ok(Self {
+            job_id: r.job_id,
+            level: r.level,
+            geometry,
+            params,
+            sample,
+            parent,
+        })
+    }
+}
+
+impl LevelLoad {
+    /// Bytes of the sample planes (pixels and defined-masks).
+    pub fn plane_bytes(&self) -> u64 {
+        self.sample.bytes() + self.parent.as_ref().map_or(0, OwnedPlane::bytes)
+    }
+
+    /// The level with its reference positions (the expensive part: run it off
+    /// the I/O threads).
+    pub fn locate(self) -> texsyn_engine::Result<OwnedLevel> {
+        OwnedLevel::locate(
+            self.level as usize,
+            self.geometry,
+            self.params,
+            self.sample,
+            self.parent,
+        )
+    }
 }
 
 impl From<&pb::Hit> for Hit {
@@ -293,6 +387,36 @@ mod tests {
         assert!(geometry_from_proto(Some(&g(5, 2, 1, 1, 0))).is_err());
         assert!(geometry_from_proto(Some(&g(5, 3, 0, 0, 0))).is_err());
         assert!(geometry_from_proto(Some(&g(5, 3, 1, 1, 7))).is_err());
+    }
+
+    #[test]
+    fn load_level_requests_are_checked_and_round_trip() {
+        let px: Vec<u8> = (0..64).collect();
+        let pp: Vec<u8> = (0..16).collect();
+        let sample = Sample {
+            fine: Plane::new(8, 8, &px, None).unwrap(),
+            parent: Some(Plane::new(4, 4, &pp, None).unwrap()),
+        };
+        let g = Geometry::new(3, 3).unwrap();
+        let r = load_level_request("job", 2, &g, &Params::default(), &sample);
+        let l = LevelLoad::try_from(r.clone()).unwrap();
+        assert_eq!((l.job_id.as_str(), l.level, l.geometry), ("job", 2, g));
+        assert_eq!(l.plane_bytes(), 64 + 16);
+        assert_eq!(l.locate().unwrap().total(), 6 * 6);
+        let mut bad = r.clone();
+        bad.parent = None;
+        let e = LevelLoad::try_from(bad).unwrap_err();
+        assert!(e.message().contains("no parent plane"), "{}", e.message());
+        let mut bad = r.clone();
+        bad.job_id.clear();
+        assert_eq!(
+            LevelLoad::try_from(bad).unwrap_err().code(),
+            tonic::Code::InvalidArgument
+        );
+        let mut bad = r;
+        bad.sample = None;
+        let e = LevelLoad::try_from(bad).unwrap_err();
+        assert_eq!(e.message(), "the sample plane is missing");
     }
 
     #[test]

@@ -69,6 +69,13 @@ async fn channel(addr: SocketAddr) -> Channel {
         .unwrap()
 }
 
+/// A worker started with `config` and a client without a token.
+async fn start(config: WorkerConfig) -> (Worker, Client) {
+    let w = Worker::start(config).await;
+    let c = connect(w.addr, None).await;
+    (w, c)
+}
+
 async fn connect(addr: SocketAddr, token: Option<&str>) -> Client {
     pb::worker_client::WorkerClient::with_interceptor(
         channel(addr).await,
@@ -124,17 +131,13 @@ impl Level {
     }
 
     fn load(&self, job: &str, level: u32) -> pb::LoadLevelRequest {
-        let p = self.planes();
-        pb::LoadLevelRequest {
-            job_id: job.into(),
+        texsyn_proto::wire::load_level_request(
+            job,
             level,
-            geometry: Some(texsyn_proto::wire::geometry_to_proto(
-                &self.geometry,
-                &self.params,
-            )),
-            sample: Some(pb::Plane::from(&p.fine)),
-            parent: p.parent.as_ref().map(pb::Plane::from),
-        }
+            &self.geometry,
+            &self.params,
+            &self.planes(),
+        )
     }
 
     fn dims(&self) -> usize {
@@ -326,8 +329,7 @@ async fn lbg_workers_quantise_their_ranges() {
     let mut workers = Vec::new();
     let mut clients = Vec::new();
     for _ in 0..2 {
-        let w = Worker::start(config()).await;
-        let mut c = connect(w.addr, None).await;
+        let (w, mut c) = start(config()).await;
         c.load_level(level.load("job", 0)).await.unwrap();
         clients.push(c);
         workers.push(w);
@@ -374,8 +376,7 @@ async fn lbg_workers_quantise_their_ranges() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn empty_range_answers_none_hits() {
     let level = Level::new(3, 24);
-    let w = Worker::start(config()).await;
-    let mut c = connect(w.addr, None).await;
+    let (w, mut c) = start(config()).await;
     c.load_level(level.load("j", 0)).await.unwrap();
     c.assign(assign("j", 0, 5, 5)).await.unwrap();
     let q = level.queries(1, 3);
@@ -432,12 +433,11 @@ async fn wrong_or_missing_token_is_unauthenticated_and_worker_keeps_serving() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn oversized_message_is_resource_exhausted() {
-    let w = Worker::start(WorkerConfig {
+    let (w, mut c) = start(WorkerConfig {
         max_message: 64 << 10,
         ..config()
     })
     .await;
-    let mut c = connect(w.addr, None).await;
     let big = Level::new(2, 300);
     assert_eq!(
         code(c.load_level(big.load("j", 0)).await),
@@ -470,50 +470,11 @@ async fn oversized_message_is_resource_exhausted() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn malformed_requests_get_a_status_not_a_crash() {
-    let w = Worker::start(config()).await;
-    let mut c = connect(w.addr, None).await;
+    let (w, mut c) = start(config()).await;
     let level = Level::new(5, 40);
     let good = || level.load("job", 2);
 
-    // LoadLevel.
-    let mut r = good();
-    r.geometry.as_mut().unwrap().neighbourhood = 4;
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
-    let mut r = good();
-    r.geometry.as_mut().unwrap().parent_window = 2;
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
-    let mut r = good();
-    r.geometry = None;
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
-    let mut r = good();
-    r.geometry.as_mut().unwrap().metric = 9;
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
-    let mut r = good();
-    let g = r.geometry.as_mut().unwrap();
-    (g.weight_hi, g.weight_lo) = (0, 0);
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
-    let mut r = good();
-    r.sample.as_mut().unwrap().pixels.pop();
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
-    let mut r = good();
-    r.sample.as_mut().unwrap().defined.truncate(7);
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
-    let mut r = good();
-    let s = r.sample.as_mut().unwrap();
-    (s.width, s.height) = (u32::MAX, u32::MAX);
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
-    let mut r = good();
-    r.parent = None;
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
-    let mut r = good();
-    r.sample = None;
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
-    let mut r = good();
-    r.job_id = String::new();
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
-    let mut r = good();
-    r.job_id = "x".repeat(129);
-    assert_eq!(code(c.load_level(r).await), Code::InvalidArgument);
+    malformed_load_levels(&mut c, good).await;
 
     // Nothing loaded yet.
     assert_eq!(
@@ -560,50 +521,7 @@ async fn malformed_requests_get_a_status_not_a_crash() {
     );
     c.assign(assign("job", 2, 0, total)).await.unwrap();
 
-    // Search.
-    let bad_batches = [
-        (batch("job", 2, 0, 1, 5, &q), Code::InvalidArgument), // count × dims ≠ len
-        (
-            pb::SearchBatch {
-                masks: vec![1; 3],
-                ..batch("job", 2, 0, 1, 4, &q)
-            },
-            Code::InvalidArgument,
-        ),
-        (
-            batch("job", 2, 0, 1, 0, &(vec![], vec![])),
-            Code::InvalidArgument,
-        ),
-        (batch("job", 2, 0, 100_000, 4, &q), Code::InvalidArgument),
-        (batch("", 2, 0, 1, 4, &q), Code::InvalidArgument),
-        (batch("nope", 2, 0, 1, 4, &q), Code::FailedPrecondition),
-        (batch("job", 7, 0, 1, 4, &q), Code::FailedPrecondition),
-        (
-            pb::SearchBatch {
-                epoch: 9,
-                ..batch("job", 2, 0, 1, 4, &q)
-            },
-            Code::FailedPrecondition,
-        ),
-    ];
-    for (b, want) in bad_batches {
-        let desc = format!("{} {} {} {}", b.job_id, b.level, b.count, b.epoch);
-        assert_eq!(code(search(&mut c, vec![b]).await), want, "{desc}");
-    }
-    // A bad batch ends its stream; the answers before it still arrive.
-    let mut stream = c
-        .search(tokio_stream::iter(vec![
-            batch("job", 2, 1, 1, 4, &q),
-            batch("job", 2, 2, 1, 5, &q),
-        ]))
-        .await
-        .unwrap()
-        .into_inner();
-    assert_eq!(stream.message().await.unwrap().unwrap().batch_id, 1);
-    assert_eq!(
-        stream.message().await.unwrap_err().code(),
-        Code::InvalidArgument
-    );
+    malformed_searches(&mut c, &q).await;
 
     // A new level replaces the old one: searches of the old level are refused.
     c.load_level(level.load("job", 1)).await.unwrap();
@@ -625,14 +543,104 @@ async fn malformed_requests_get_a_status_not_a_crash() {
     w.shutdown().await;
 }
 
+/// A change that makes a good `LoadLevel` request malformed.
+type Spoil = fn(&mut pb::LoadLevelRequest);
+
+/// Every malformed `LoadLevel` (a mutation of the good request) is INVALID_ARGUMENT.
+async fn malformed_load_levels(c: &mut Client, good: impl Fn() -> pb::LoadLevelRequest) {
+    let cases: [(&str, Spoil); 12] = [
+        ("even neighbourhood", |r| {
+            r.geometry.as_mut().unwrap().neighbourhood = 4
+        }),
+        ("even parent window", |r| {
+            r.geometry.as_mut().unwrap().parent_window = 2
+        }),
+        ("no geometry", |r| r.geometry = None),
+        ("unknown metric", |r| {
+            r.geometry.as_mut().unwrap().metric = 9
+        }),
+        ("zero weights", |r| {
+            let g = r.geometry.as_mut().unwrap();
+            (g.weight_hi, g.weight_lo) = (0, 0);
+        }),
+        ("short pixels", |r| {
+            r.sample.as_mut().unwrap().pixels.pop();
+        }),
+        ("short mask", |r| {
+            r.sample.as_mut().unwrap().defined.truncate(7)
+        }),
+        ("huge plane", |r| {
+            let s = r.sample.as_mut().unwrap();
+            (s.width, s.height) = (u32::MAX, u32::MAX);
+        }),
+        ("no parent", |r| r.parent = None),
+        ("no sample", |r| r.sample = None),
+        ("empty job id", |r| r.job_id = String::new()),
+        ("long job id", |r| r.job_id = "x".repeat(129)),
+    ];
+    for (what, spoil) in cases {
+        let mut r = good();
+        spoil(&mut r);
+        assert_eq!(code(c.load_level(r).await), Code::InvalidArgument, "{what}");
+    }
+}
+
+/// Malformed or misdirected search batches get their status; a bad batch ends
+/// its stream after the answers before it.
+async fn malformed_searches(c: &mut Client, q: &(Vec<u8>, Vec<u8>)) {
+    // Search.
+    let bad_batches = [
+        (batch("job", 2, 0, 1, 5, q), Code::InvalidArgument), // count × dims ≠ len
+        (
+            pb::SearchBatch {
+                masks: vec![1; 3],
+                ..batch("job", 2, 0, 1, 4, q)
+            },
+            Code::InvalidArgument,
+        ),
+        (
+            batch("job", 2, 0, 1, 0, &(vec![], vec![])),
+            Code::InvalidArgument,
+        ),
+        (batch("job", 2, 0, 100_000, 4, q), Code::InvalidArgument),
+        (batch("", 2, 0, 1, 4, q), Code::InvalidArgument),
+        (batch("nope", 2, 0, 1, 4, q), Code::FailedPrecondition),
+        (batch("job", 7, 0, 1, 4, q), Code::FailedPrecondition),
+        (
+            pb::SearchBatch {
+                epoch: 9,
+                ..batch("job", 2, 0, 1, 4, q)
+            },
+            Code::FailedPrecondition,
+        ),
+    ];
+    for (b, want) in bad_batches {
+        let desc = format!("{} {} {} {}", b.job_id, b.level, b.count, b.epoch);
+        assert_eq!(code(search(c, vec![b]).await), want, "{desc}");
+    }
+    // A bad batch ends its stream; the answers before it still arrive.
+    let mut stream = c
+        .search(tokio_stream::iter(vec![
+            batch("job", 2, 1, 1, 4, q),
+            batch("job", 2, 2, 1, 5, q),
+        ]))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(stream.message().await.unwrap().unwrap().batch_id, 1);
+    assert_eq!(
+        stream.message().await.unwrap_err().code(),
+        Code::InvalidArgument
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn memory_limit_is_resource_exhausted() {
-    let w = Worker::start(WorkerConfig {
+    let (w, mut c) = start(WorkerConfig {
         max_memory: 1 << 20,
         ..config()
     })
     .await;
-    let mut c = connect(w.addr, None).await;
     let level = Level::new(9, 200);
     let total = c
         .load_level(level.load("j", 0))
@@ -655,8 +663,7 @@ async fn memory_limit_is_resource_exhausted() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn protocol_version_mismatch_is_failed_precondition() {
-    let w = Worker::start(config()).await;
-    let mut c = connect(w.addr, None).await;
+    let (w, mut c) = start(config()).await;
     let s = c
         .info(pb::InfoRequest {
             protocol_version: PROTOCOL_VERSION + 1,
@@ -683,8 +690,7 @@ async fn protocol_version_mismatch_is_failed_precondition() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn calibration_reports_throughput_and_caps_sizes() {
-    let w = Worker::start(config()).await;
-    let mut c = connect(w.addr, None).await;
+    let (w, mut c) = start(config()).await;
     let r = c
         .calibrate(pb::CalibrateRequest {
             seed: 42,
@@ -752,12 +758,11 @@ async fn health_check_reports_serving() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn idle_timeout_frees_the_job() {
-    let w = Worker::start(WorkerConfig {
+    let (w, mut c) = start(WorkerConfig {
         idle_timeout: Some(Duration::from_millis(200)),
         ..config()
     })
     .await;
-    let mut c = connect(w.addr, None).await;
     let level = Level::new(4, 40);
     c.load_level(level.load("j", 0)).await.unwrap();
     c.assign(assign("j", 0, 0, 100)).await.unwrap();
@@ -779,8 +784,7 @@ async fn idle_timeout_frees_the_job() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn shutdown_ends_open_search_streams() {
-    let w = Worker::start(config()).await;
-    let mut c = connect(w.addr, None).await;
+    let (w, mut c) = start(config()).await;
     let level = Level::new(4, 40);
     c.load_level(level.load("j", 0)).await.unwrap();
     c.assign(assign("j", 0, 0, 100)).await.unwrap();

@@ -11,7 +11,7 @@
 //! `RAYON_NUM_THREADS` to change it). Sample counts and times are kept small
 //! so the whole run takes about 1–2 minutes on 2 cores:
 //!
-//!     cargo bench -p texsyn-worker --bench kernel [-- <filter>]
+//!     cargo bench -p texsyn-engine --bench kernel [-- <filter>]
 
 use std::hint::black_box;
 use std::time::Duration;

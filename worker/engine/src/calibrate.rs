@@ -9,10 +9,12 @@ use std::time::Instant;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use crate::batch::QueryBatch;
 use crate::error::{EngineError, Result};
 use crate::kernel::Params;
-use crate::layout::{Layout, QueryBatch, VectorSpace};
+use crate::layout::Layout;
 use crate::search::Engine;
+use crate::space::VectorSpace;
 
 /// Most vectors a calibration may ask for.
 pub const MAX_VECTORS: u32 = 1 << 20;

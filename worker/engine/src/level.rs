@@ -6,7 +6,8 @@
 
 use crate::error::Result;
 use crate::kernel::Params;
-use crate::layout::{reference_positions, Geometry, OwnedPlane, Sample};
+use crate::layout::Geometry;
+use crate::plane::{reference_positions, OwnedPlane, Sample};
 
 /// A level's sample planes, geometry, parameters and reference positions.
 #[derive(Debug, Clone)]

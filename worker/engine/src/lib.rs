@@ -6,6 +6,7 @@
 //! and the worker's gRPC service both call the same [`Engine`]; nothing else in
 //! texsyn searches. See docs/ARCHITECTURE.md for where it sits.
 
+pub mod batch;
 pub mod calibrate;
 pub mod error;
 pub mod kernel;
@@ -13,15 +14,18 @@ pub mod layout;
 pub mod lbg;
 pub mod level;
 pub mod merge;
+pub mod plane;
 pub mod search;
+pub mod space;
 
+pub use batch::QueryBatch;
 pub use calibrate::{calibrate, Calibration, CalibrationSize};
 pub use error::{EngineError, Result};
 pub use kernel::{distance, Kernel, Params};
-pub use layout::{
-    Geometry, Layout, Metric, OwnedPlane, Plane, QueryBatch, Sample, VectorSpace, Weights,
-};
+pub use layout::{Geometry, Layout, Metric, Weights};
 pub use lbg::{Codebook, LbgConfig, LbgStats};
 pub use level::OwnedLevel;
 pub use merge::{check_part, merge_answers, merge_best, merge_topk, Hit};
+pub use plane::{OwnedPlane, Plane, Sample};
 pub use search::Engine;
+pub use space::VectorSpace;

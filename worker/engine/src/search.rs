@@ -10,10 +10,11 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
+use crate::batch::QueryBatch;
 use crate::error::{EngineError, Result};
 use crate::kernel::{Kernel, Params, Scan, Sink};
-use crate::layout::{QueryBatch, VectorSpace};
 use crate::merge::{merge_best, merge_topk, Hit};
+use crate::space::VectorSpace;
 
 struct BestSink {
     dist: Vec<u64>,
@@ -185,14 +186,14 @@ impl Engine {
         queries: &'a QueryBatch,
         params: &Params,
     ) -> Scan<'a> {
-        Scan {
-            layout: space.layout(),
-            params: *params,
-            vectors: space.slice(r.clone()),
-            count: (r.end - r.start) as usize,
-            base: r.start,
+        Scan::new(
+            space.layout(),
+            *params,
+            space.slice(r.clone()),
+            (r.end - r.start) as usize,
+            r.start,
             queries,
-        }
+        )
     }
 
     /// Best match per query in the global index `range` of `space`.

@@ -1,23 +1,22 @@
 //! The `texsyn.v1.Worker` RPCs.
 
+use std::ops::Range;
 use std::sync::Arc;
 use std::time::Instant;
 
 use texsyn_engine::calibrate::{calibrate, CalibrationSize};
-use texsyn_engine::layout::{QueryBatch, VectorSpace, SLACK};
-use texsyn_engine::{Hit, OwnedPlane};
+use texsyn_engine::layout::SLACK;
+use texsyn_engine::lbg::{check_probes, default_seeds, range_seed};
+use texsyn_engine::{Codebook, Engine, Hit, LbgConfig, OwnedLevel, QueryBatch, VectorSpace};
 use texsyn_proto::v1 as proto;
 use texsyn_proto::v1::worker_server::Worker;
+use texsyn_proto::wire::{check_job_id, engine_status, invalid, LevelLoad, MAX_QUERIES, MAX_TOP_K};
 use texsyn_proto::PROTOCOL_VERSION;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
-use texsyn_proto::wire::{
-    check_job_id, engine_status, geometry_from_proto, invalid, plane_from_proto, MAX_QUERIES,
-    MAX_TOP_K,
-};
+use super::state::{Assigned, Shared};
 
-use super::state::{Assigned, Level, Shared};
 /// Upper bound of one encoded `Hit` in a `SearchResult` (tag, two varints, length).
 const HIT_WIRE_BYTES: usize = 24;
 
@@ -112,34 +111,10 @@ impl Worker for WorkerService {
         &self,
         request: Request<proto::LoadLevelRequest>,
     ) -> Result<Response<proto::LoadLevelReply>, Status> {
-        let r = request.into_inner();
-        check_job_id(&r.job_id)?;
-        let (geometry, params) = geometry_from_proto(r.geometry.as_ref())?;
-        let sample = plane_from_proto(
-            r.sample
-                .ok_or_else(|| invalid("the sample plane is missing"))?,
-            "sample",
-        )?;
-        let parent = r
-            .parent
-            .map(|p| plane_from_proto(p, "parent"))
-            .transpose()?;
-        match (geometry.m, &parent) {
-            (0, Some(_)) => {
-                return Err(invalid(
-                    "a parent plane was given but the geometry has no parent window (parent_window = 0)",
-                ))
-            }
-            (m, None) if m > 0 => {
-                return Err(invalid(format!(
-                    "the geometry has a {m}×{m} parent window but no parent plane was given"
-                )))
-            }
-            _ => {}
-        }
-        let planes = sample.bytes() + parent.as_ref().map_or(0, OwnedPlane::bytes);
+        let r = LevelLoad::try_from(request.into_inner())?;
+        let planes = r.plane_bytes();
         // Worst case: every pixel is a reference position (8 bytes each).
-        let bound = planes + sample.width as u64 * sample.height as u64 * 8;
+        let bound = planes + r.sample.width as u64 * r.sample.height as u64 * 8;
         if bound > self.shared.max_memory {
             return Err(exhausted(format!(
                 "level {} of job '{}' may need {bound} bytes, over --max-memory {}",
@@ -148,17 +123,17 @@ impl Worker for WorkerService {
         }
         self.shared.begin_level(&r.job_id)?;
         let t = Instant::now();
-        let number = r.level as usize;
+        let (job_id, number) = (r.job_id.clone(), r.level);
         let level = self
             .shared
-            .run(move || Level::locate(number, geometry, params, sample, parent))
+            .run(move || r.locate())
             .await?
             .map_err(engine_status)?;
         let (total, bytes) = (level.total(), level.bytes());
-        self.shared.install_level(&r.job_id, Arc::new(level));
+        self.shared.install_level(&job_id, Arc::new(level));
         tracing::info!(
-            job = r.job_id,
-            level = r.level,
+            job = job_id,
+            level = number,
             total,
             bytes,
             seconds = t.elapsed().as_secs_f64(),
@@ -188,11 +163,7 @@ impl Worker for WorkerService {
         // LBG (lbg_probes > 0): the range is quantised into ⌈√count⌉ partitions.
         let probes = r.lbg_probes as usize;
         if probes > 0 && count > 0 {
-            texsyn_engine::lbg::check_probes(
-                probes,
-                texsyn_engine::lbg::default_seeds(count as usize),
-            )
-            .map_err(engine_status)?;
+            check_probes(probes, default_seeds(count as usize)).map_err(engine_status)?;
         }
         let per_vector =
             (level.geometry.layout().stride() + std::mem::size_of::<[u32; 2]>()) as u64;
@@ -216,32 +187,7 @@ impl Worker for WorkerService {
         let engine = self.shared.engine;
         let (space, lbg) = self
             .shared
-            .run(move || -> texsyn_engine::Result<_> {
-                let space = VectorSpace::build_from_positions(
-                    &lv.sample(),
-                    &lv.geometry,
-                    &lv.positions,
-                    start..end,
-                )?;
-                if probes == 0 || space.is_empty() {
-                    return Ok((space, None));
-                }
-                // Deterministic per (level, range): a re-assigned range is
-                // re-quantised into the same codebook on any worker.
-                let cfg = texsyn_engine::lbg::LbgConfig {
-                    seed: texsyn_engine::lbg::range_seed(0, lv.level as u32, &(start..end)),
-                    ..texsyn_engine::lbg::LbgConfig::default()
-                };
-                let cb = texsyn_engine::lbg::Codebook::train(
-                    &engine,
-                    &space,
-                    start..end,
-                    &lv.params,
-                    &cfg,
-                )?;
-                let placeholder = VectorSpace::from_unpadded(space.layout(), start, &[])?;
-                Ok((placeholder, Some((cb, probes))))
-            })
+            .run(move || build_range(&engine, &lv, start..end, probes))
             .await?
             .map_err(engine_status)?;
         let build_seconds = t.elapsed().as_secs_f64();
@@ -418,4 +364,34 @@ async fn search_batch(
         per_query: per_query as u32,
         seconds,
     })
+}
+
+/// The vectors of `range` of the level, or (with `probes` > 0) the LBG
+/// codebook trained over them and an empty placeholder space (Stahlhut §9,
+/// ARCHITECTURE §3.8).
+fn build_range(
+    engine: &Engine,
+    lv: &OwnedLevel,
+    range: Range<u64>,
+    probes: usize,
+) -> texsyn_engine::Result<(VectorSpace, Option<(Codebook, usize)>)> {
+    let space = VectorSpace::build_from_positions(
+        &lv.sample(),
+        &lv.geometry,
+        &lv.positions,
+        range.clone(),
+    )?;
+    if probes == 0 || space.is_empty() {
+        return Ok((space, None));
+    }
+    // Deterministic per (level, range): a re-assigned range is
+    // re-quantised into the same codebook on any worker.
+    let cfg = LbgConfig {
+        seed: range_seed(0, lv.level as u32, &range),
+        ..LbgConfig::default()
+    };
+    let start = range.start;
+    let cb = Codebook::train(engine, &space, range, &lv.params, &cfg)?;
+    let placeholder = VectorSpace::from_unpadded(space.layout(), start, &[])?;
+    Ok((placeholder, Some((cb, probes))))
 }

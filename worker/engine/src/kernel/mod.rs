@@ -6,8 +6,10 @@
 //! a whole batch of queries in one pass over the vectors: each vector is loaded
 //! once and compared with every query while it sits in registers.
 
+use crate::batch::QueryBatch;
 use crate::error::{EngineError, Result};
-use crate::layout::{AlignedBytes, Layout, Metric, QueryBatch, Weights};
+use crate::layout::{Layout, Metric, Weights, LANE, SLACK};
+use crate::space::AlignedBytes;
 
 mod scalar;
 #[cfg(target_arch = "x86_64")]
@@ -123,29 +125,89 @@ pub(crate) trait Sink {
     fn run(&mut self, q: usize, first: u64, d: &[u64]);
 }
 
-/// One pass of a kernel over `count` padded vectors (with [`crate::layout::SLACK`]
-/// readable bytes after them), global indices from `base`.
+/// One pass of a kernel over `count` padded vectors, global indices from `base`.
+///
+/// [`Scan::new`] is the only way to make one, and it checks once per scan what
+/// the SIMD kernels rely on for memory safety (ARCHITECTURE §3.2, §3.5):
+/// - the layout is the padded layout of its part lengths ([`Layout::new`]), so
+///   both parts are multiples of [`LANE`] bytes and every 32- or 64-byte chunk a
+///   kernel loads lies inside one vector's `stride` bytes;
+/// - the queries have the same layout, so a query buffer indexed with this
+///   `stride` holds every byte a kernel loads from it;
+/// - `vectors` holds `count × stride` bytes plus [`SLACK`] readable bytes after
+///   the last vector.
+///
+/// The checks are `assert!`s, so a short buffer is a panic in every build,
+/// never an out-of-bounds read.
 pub(crate) struct Scan<'a> {
-    pub layout: Layout,
-    pub params: Params,
-    pub vectors: &'a [u8],
-    pub count: usize,
-    pub base: u64,
-    pub queries: &'a QueryBatch,
+    layout: Layout,
+    params: Params,
+    vectors: &'a [u8],
+    count: usize,
+    base: u64,
+    queries: &'a QueryBatch,
+}
+
+impl<'a> Scan<'a> {
+    /// A scan of the first `count` padded vectors of `vectors` against `queries`.
+    ///
+    /// # Panics
+    /// If `layout` is not a padded layout, the queries have another layout, or
+    /// `vectors` is shorter than `count × stride + SLACK` bytes.
+    pub(crate) fn new(
+        layout: Layout,
+        params: Params,
+        vectors: &'a [u8],
+        count: usize,
+        base: u64,
+        queries: &'a QueryBatch,
+    ) -> Self {
+        assert!(
+            layout == Layout::new(layout.hi_len, layout.lo_len)
+                && layout.hi_pad.is_multiple_of(LANE)
+                && layout.lo_pad.is_multiple_of(LANE),
+            "scan layout {layout:?} is not padded to {LANE}-byte lanes"
+        );
+        assert_eq!(
+            queries.layout(),
+            layout,
+            "queries and vectors of a scan have different layouts"
+        );
+        let need = count
+            .checked_mul(layout.stride())
+            .and_then(|b| b.checked_add(SLACK));
+        assert!(
+            need.is_some_and(|need| vectors.len() >= need),
+            "scan of {count} vectors of {} bytes needs {need:?} bytes with the slack, got {}",
+            layout.stride(),
+            vectors.len()
+        );
+        Self {
+            layout,
+            params,
+            vectors,
+            count,
+            base,
+            queries,
+        }
+    }
 }
 
 impl Kernel {
     /// Runs the kernel over `scan`, feeding every (vector, query) distance to `sink`.
     pub(crate) fn scan<S: Sink>(&self, scan: &Scan, sink: &mut S) {
-        debug_assert!(
-            scan.vectors.len() >= scan.count * scan.layout.stride() + crate::layout::SLACK
-        );
         match self {
             Kernel::Scalar => scalar::scan(scan, sink),
             #[cfg(target_arch = "x86_64")]
             Kernel::Avx2 => {
                 assert!(x86::has_avx2(), "AVX2 kernel on a CPU without AVX2");
-                // SAFETY: the CPU supports AVX2 (checked above).
+                // SAFETY: CPU features: AVX2 is present (asserted just above).
+                // Memory: `scan` was built by `Scan::new`, which asserted a
+                // lane-padded layout shared by vectors and queries and at least
+                // `count × stride + SLACK` vector bytes; `scan_avx2` only loads
+                // 32-byte chunks inside vectors `0..count`, inside queries
+                // `0..len` (or their padded copies) and stores into buffers it
+                // sized itself (see the memory notes in `x86.rs`).
                 unsafe { x86::scan_avx2(scan, sink) }
             }
             #[cfg(target_arch = "x86_64")]
@@ -154,7 +216,12 @@ impl Kernel {
                     x86::has_avx512(),
                     "AVX-512 kernel on a CPU without AVX-512BW/VL"
                 );
-                // SAFETY: the CPU supports AVX-512F/BW/VL and AVX2 (checked above).
+                // SAFETY: CPU features: AVX-512F/BW/VL and AVX2 are present
+                // (asserted just above). Memory: as for AVX2 — `Scan::new`
+                // asserted the padded layout, the query layout and
+                // `count × stride + SLACK` vector bytes; every 64- or 32-byte
+                // load of `scan_avx512` lies inside one vector of `0..count` or
+                // one padded query (see the memory notes in `x86.rs`).
                 unsafe { x86::scan_avx512(scan, sink) }
             }
             #[cfg(not(target_arch = "x86_64"))]
@@ -173,4 +240,47 @@ pub(crate) fn padded_queries(q: &QueryBatch, group: usize) -> (AlignedBytes, Ali
     v.as_mut_slice()[..q.len() * s].copy_from_slice(q.all_values());
     m.as_mut_slice()[..q.len() * s].copy_from_slice(q.all_masks());
     (v, m, n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layout::Geometry;
+
+    #[test]
+    fn scan_accepts_exactly_the_slack() {
+        let layout = Geometry::new(3, 0).unwrap().layout();
+        let q = QueryBatch::new(layout);
+        let buf = vec![0u8; 2 * layout.stride() + SLACK];
+        let scan = Scan::new(layout, Params::default(), &buf, 2, 0, &q);
+        assert_eq!(scan.count, 2);
+    }
+
+    #[test]
+    #[should_panic(expected = "with the slack")]
+    fn scan_rejects_a_short_buffer() {
+        let layout = Geometry::new(3, 0).unwrap().layout();
+        let q = QueryBatch::new(layout);
+        let buf = vec![0u8; 2 * layout.stride() + SLACK - 1];
+        let _ = Scan::new(layout, Params::default(), &buf, 2, 0, &q);
+    }
+
+    #[test]
+    #[should_panic(expected = "different layouts")]
+    fn scan_rejects_queries_of_another_layout() {
+        let layout = Geometry::new(3, 0).unwrap().layout();
+        let q = QueryBatch::new(Geometry::new(5, 0).unwrap().layout());
+        let buf = vec![0u8; SLACK];
+        let _ = Scan::new(layout, Params::default(), &buf, 0, 0, &q);
+    }
+
+    #[test]
+    #[should_panic(expected = "not padded")]
+    fn scan_rejects_an_unpadded_layout() {
+        let mut layout = Geometry::new(3, 0).unwrap().layout();
+        layout.hi_pad = 40;
+        let q = QueryBatch::new(layout);
+        let buf = vec![0u8; 4096];
+        let _ = Scan::new(layout, Params::default(), &buf, 1, 0, &q);
+    }
 }

@@ -7,8 +7,29 @@
 //! turns 8 (or 4) accumulators into 8 (or 4) packed sums at once, and two
 //! `vpmuludq` apply the integer weights. The result equals the scalar reference
 //! exactly (integer arithmetic, no overflow: hi and lo sums stay below 2³²).
-
-#![allow(clippy::missing_safety_doc)]
+//!
+//! # Memory bounds (ARCHITECTURE §3.2)
+//!
+//! The `unsafe fn`s here need two things from their caller: the CPU features of
+//! their `#[target_feature]`, and a [`Scan`] built by `Scan::new`. The latter
+//! asserted that the layout is padded (`hi_pad` and `lo_pad` are multiples of
+//! [`LANE`](crate::layout::LANE) = 32 bytes), that the queries have the same layout, and that
+//! `scan.vectors` holds `count × stride + SLACK` bytes. From that:
+//! - A vector pointer is `vectors + i·stride` with `i < count` (rows) or
+//!   `i = 4g + j < 4·⌊count/4⌋` (AVX2 groups); the rest go to the safe scalar
+//!   [`tail`].
+//! - The chunk offsets of [`Plan`] stay inside one vector: the hi part is
+//!   `hi64` 64-byte chunks plus a 32-byte chunk when `hi_pad` is an odd number of
+//!   lanes (`64·hi64 + 32 = hi_pad`), the lo part likewise from `hi_pad` to
+//!   `hi_pad + lo_pad = stride`; AVX2 walks both parts in 32-byte chunks. So the
+//!   last byte loaded from vector `i` is byte `(i+1)·stride − 1`, inside
+//!   `count × stride`; the kernels never read past the last vector today, and
+//!   the [`SLACK`](crate::layout::SLACK) bytes after it (guaranteed all the same) are a margin for a
+//!   kernel whose last load is wider than the last chunk.
+//! - Query pointers index the padded copies of [`padded_queries`] (`nqp × stride`
+//!   bytes, query `g·group + j < nqp`) or one query's own `stride`-byte slice.
+//! - Stores go to `row` (`nqp` lanes, groups `g < nqp / group`) or a 4-lane
+//!   buffer, both sized here.
 
 use std::arch::x86_64::*;
 
@@ -166,6 +187,9 @@ unsafe fn weigh512(r: __m512i, wh: __m512i, wl: __m512i) -> __m512i {
     )
 }
 
+/// # Safety
+/// The CPU must support AVX2, AVX-512F, AVX-512BW and AVX-512VL; `scan` was
+/// built by `Scan::new` (see the memory bounds in the module documentation).
 #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
 pub(crate) unsafe fn scan_avx512<S: Sink>(scan: &Scan, sink: &mut S) {
     match scan.params.metric {
@@ -188,6 +212,8 @@ unsafe fn scan512<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
         let (qv, qm) = (qv.as_slice(), qm.as_slice());
         let mut row = vec![0u64; nqp];
         for i in 0..scan.count {
+            // Vector i < count: bytes i·s..(i+1)·s are inside `scan.vectors`;
+            // query g·8 + j < nqp: inside the padded copies (nqp × s bytes).
             let v = [vp.add(i * s); 8];
             for g in 0..nqp / 8 {
                 let q: [*const u8; 8] = std::array::from_fn(|j| qv.as_ptr().add((g * 8 + j) * s));
@@ -268,6 +294,9 @@ unsafe fn weigh256(r: __m256i, wh: __m256i, wl: __m256i) -> __m256i {
     )
 }
 
+/// # Safety
+/// The CPU must support AVX2; `scan` was built by `Scan::new` (see the memory
+/// bounds in the module documentation).
 #[target_feature(enable = "avx2")]
 pub(crate) unsafe fn scan_avx2<S: Sink>(scan: &Scan, sink: &mut S) {
     match scan.params.metric {
@@ -289,6 +318,7 @@ unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
         let (qv, qm) = (qv.as_slice(), qm.as_slice());
         let mut row = vec![0u64; nqp];
         for i in 0..scan.count {
+            // As in `scan512`: vector i < count, query g·4 + j < nqp.
             let v = [vp.add(i * s); 4];
             for g in 0..nqp / 4 {
                 let q: [*const u8; 4] = std::array::from_fn(|j| qv.as_ptr().add((g * 4 + j) * s));
@@ -302,6 +332,7 @@ unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
         let mut buf = [0u64; 4];
         let groups = scan.count / 4;
         for g in 0..groups {
+            // Vectors 4g..4g+4 ≤ count; each query is its own s-byte slice.
             let v: [*const u8; 4] = std::array::from_fn(|j| vp.add((g * 4 + j) * s));
             for qi in 0..nq {
                 let q = [scan.queries.values(qi).as_ptr(); 4];

@@ -1,0 +1,150 @@
+//! A batch of masked query vectors in the padded layout (ARCHITECTURE §3.2,
+//! §3.4): what a search compares against the reference vectors.
+
+use crate::error::{EngineError, Result};
+use crate::layout::Layout;
+
+/// A batch of query vectors, each with its own mask of defined components
+/// (ARCHITECTURE §3.4: only masked-in components are compared).
+#[derive(Debug, Clone)]
+pub struct QueryBatch {
+    layout: Layout,
+    len: usize,
+    /// Padded values with masked-out components zeroed.
+    values: Vec<u8>,
+    /// Padded masks, 0xFF = compare, 0 = ignore (padding is 0).
+    masks: Vec<u8>,
+}
+
+impl QueryBatch {
+    pub fn new(layout: Layout) -> Self {
+        Self {
+            layout,
+            len: 0,
+            values: Vec::new(),
+            masks: Vec::new(),
+        }
+    }
+
+    /// Adds a query from unpadded values and mask (`layout.dims()` bytes each,
+    /// mask non-zero = defined).
+    pub fn push(&mut self, values: &[u8], mask: &[u8]) -> Result<()> {
+        let dims = self.layout.dims();
+        if values.len() != dims {
+            return Err(EngineError::Length {
+                what: "query values",
+                got: values.len(),
+                expected: dims,
+            });
+        }
+        if mask.len() != dims {
+            return Err(EngineError::Length {
+                what: "query mask",
+                got: mask.len(),
+                expected: dims,
+            });
+        }
+        let s = self.layout.stride();
+        let at = self.values.len();
+        self.values.resize(at + s, 0);
+        self.masks.resize(at + s, 0);
+        let m: Vec<u8> = mask
+            .iter()
+            .map(|&b| if b != 0 { 0xFF } else { 0 })
+            .collect();
+        let v: Vec<u8> = values.iter().zip(&m).map(|(&v, &m)| v & m).collect();
+        self.layout.scatter(&v, &mut self.values[at..at + s]);
+        self.layout.scatter(&m, &mut self.masks[at..at + s]);
+        self.len += 1;
+        Ok(())
+    }
+
+    /// Adds a query with every component defined.
+    pub fn push_full(&mut self, values: &[u8]) -> Result<()> {
+        let mask = vec![0xFFu8; values.len()];
+        self.push(values, &mask)
+    }
+
+    pub fn layout(&self) -> Layout {
+        self.layout
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Padded (masked) values of query `q`.
+    pub fn values(&self, q: usize) -> &[u8] {
+        let s = self.layout.stride();
+        &self.values[q * s..(q + 1) * s]
+    }
+
+    /// Padded mask of query `q`.
+    pub fn mask(&self, q: usize) -> &[u8] {
+        let s = self.layout.stride();
+        &self.masks[q * s..(q + 1) * s]
+    }
+
+    /// The unpadded values and masks of every query, concatenated (what
+    /// [`QueryBatch::push`] took): the form queries travel in on the wire.
+    pub fn unpadded(&self) -> (Vec<u8>, Vec<u8>) {
+        self.unpadded_range(0..self.len)
+    }
+
+    /// [`QueryBatch::unpadded`] of the queries `qs` only.
+    pub fn unpadded_range(&self, qs: std::ops::Range<usize>) -> (Vec<u8>, Vec<u8>) {
+        let n = qs.len() * self.layout.dims();
+        let (mut values, mut masks) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for q in qs {
+            self.layout.unpad_into(self.values(q), &mut values);
+            self.layout.unpad_into(self.mask(q), &mut masks);
+        }
+        (values, masks)
+    }
+
+    /// The queries `qs` of this batch, in that order (used by LBG to search
+    /// per-query partitions).
+    pub(crate) fn select(&self, qs: impl IntoIterator<Item = usize>) -> QueryBatch {
+        let s = self.layout.stride();
+        let mut out = QueryBatch::new(self.layout);
+        for q in qs {
+            out.values
+                .extend_from_slice(&self.values[q * s..(q + 1) * s]);
+            out.masks.extend_from_slice(&self.masks[q * s..(q + 1) * s]);
+            out.len += 1;
+        }
+        out
+    }
+
+    /// `count` padded vectors (`count × stride` bytes, padding zero) as queries
+    /// with every component defined (LBG scores vectors against seeds this way).
+    pub(crate) fn full_from_padded(layout: Layout, padded: &[u8], count: usize) -> QueryBatch {
+        let s = layout.stride();
+        let mut full = vec![0u8; s];
+        layout.scatter(&vec![0xFFu8; layout.dims()], &mut full);
+        let mut masks = Vec::with_capacity(count * s);
+        let mut values = Vec::with_capacity(count * s);
+        for v in padded[..count * s].chunks_exact(s) {
+            masks.extend_from_slice(&full);
+            values.extend(v.iter().zip(&full).map(|(&x, &m)| x & m));
+        }
+        QueryBatch {
+            layout,
+            len: count,
+            values,
+            masks,
+        }
+    }
+
+    pub(crate) fn all_values(&self) -> &[u8] {
+        &self.values
+    }
+
+    pub(crate) fn all_masks(&self) -> &[u8] {
+        &self.masks
+    }
+}

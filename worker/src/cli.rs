@@ -1,0 +1,210 @@
+//! The `texsyn-worker` command line: its clap argument types, the conversion of
+//! the serve flags into a [`WorkerConfig`] and the command runner
+//! (ARCHITECTURE §4, §4.4 for the token and TLS flags).
+//!
+//! `texsyn-worker serve --listen ADDR ...` (or just `texsyn-worker --listen ADDR ...`)
+//! serves the engine; `texsyn-worker health` asks a running worker.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{bail, Context};
+use clap::{Parser, Subcommand};
+use texsyn_engine::Kernel;
+use texsyn_proto::auth::{read_token, read_token_file};
+
+use crate::service::{TlsIdentity, WorkerConfig, DEFAULT_LISTEN};
+
+/// `texsyn-worker`'s arguments: a subcommand, or the serve flags directly.
+#[derive(Parser)]
+#[command(
+    name = "texsyn-worker",
+    version,
+    about = "texsyn search worker",
+    args_conflicts_with_subcommands = true,
+    after_help = "Without a subcommand the worker serves: texsyn-worker --listen 127.0.0.1:7878"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Option<Command>,
+    #[command(flatten)]
+    pub serve: ServeArgs,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Serve the search engine over gRPC to a texsyn master.
+    #[command(
+        after_help = "Prints `listening on ADDR` on stdout once bound (use port 0 for a free port).\n\
+                      Example: texsyn-worker serve --listen 0.0.0.0:7878 --token-file /etc/texsyn/token"
+    )]
+    Serve(ServeArgs),
+    /// Ask a running worker's health service; exit 0 when it is SERVING (for
+    /// container and Kubernetes probes).
+    #[command(
+        after_help = "Example: texsyn-worker health --address 127.0.0.1:7878 --token-file /etc/texsyn/token"
+    )]
+    Health(HealthArgs),
+}
+
+#[derive(clap::Args)]
+pub struct HealthArgs {
+    /// Worker address host:port.
+    #[arg(long, default_value = DEFAULT_LISTEN)]
+    pub address: String,
+    /// File holding the shared token, if the worker requires one.
+    #[arg(long)]
+    pub token_file: Option<PathBuf>,
+    /// Seconds to wait for the answer.
+    #[arg(long, default_value_t = 3.0)]
+    pub timeout: f64,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ServeArgs {
+    /// Address to listen on (default loopback only; port 0 = any free port).
+    #[arg(long, default_value = DEFAULT_LISTEN)]
+    pub listen: SocketAddr,
+    /// Search threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// File holding the shared token every call must carry (`authorization: Bearer <token>`).
+    #[arg(long)]
+    pub token_file: Option<PathBuf>,
+    /// TLS certificate chain (PEM); needs --tls-key.
+    #[arg(long, requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// TLS private key (PEM); needs --tls-cert.
+    #[arg(long, requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Most memory one job may hold, in bytes (suffixes K, M, G allowed; default 3/4 of RAM).
+    #[arg(long, value_parser = parse_bytes)]
+    pub max_memory: Option<u64>,
+    /// Largest gRPC message, in bytes (suffixes K, M, G allowed).
+    #[arg(long, value_parser = parse_bytes, default_value = "64M")]
+    pub max_message: u64,
+    /// Free a job's memory this many seconds after its last call (0 = never).
+    #[arg(long, default_value_t = 300)]
+    pub idle_timeout: u64,
+    /// Kernel: auto, scalar, avx2, avx512.
+    #[arg(long, default_value = "auto")]
+    pub kernel: String,
+    /// Read the shared token from the first line of stdin (never from the command line).
+    #[arg(long, conflicts_with = "token_file")]
+    pub token_stdin: bool,
+    /// Shut down when stdin reaches end of file (e.g. when the master's ssh session ends).
+    #[arg(long)]
+    pub exit_on_stdin_close: bool,
+}
+
+/// Parses `123`, `64K`, `64M`, `8G` (binary units).
+pub fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let (num, shift) = match t.char_indices().last() {
+        Some((i, 'k' | 'K')) => (&t[..i], 10),
+        Some((i, 'm' | 'M')) => (&t[..i], 20),
+        Some((i, 'g' | 'G')) => (&t[..i], 30),
+        _ => (t, 0),
+    };
+    let n: u64 = num
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a byte count (e.g. 1048576, 64M, 8G)"))?;
+    n.checked_mul(1u64 << shift)
+        .ok_or_else(|| format!("'{s}' is too large"))
+}
+
+/// The serve flags as a checked configuration; reads the token (file or the
+/// first line of stdin) and the TLS identity.
+impl TryFrom<ServeArgs> for WorkerConfig {
+    type Error = anyhow::Error;
+
+    fn try_from(a: ServeArgs) -> anyhow::Result<Self> {
+        let defaults = WorkerConfig::default();
+        let token = if a.token_stdin {
+            Some(read_token_stdin()?)
+        } else {
+            a.token_file.as_deref().map(read_token_file).transpose()?
+        };
+        let tls = match (&a.tls_cert, &a.tls_key) {
+            (Some(c), Some(k)) => Some(TlsIdentity::from_files(c, k)?),
+            (None, None) => None,
+            (Some(_), None) => bail!("--tls-cert was given without --tls-key; TLS needs both"),
+            (None, Some(_)) => bail!("--tls-key was given without --tls-cert; TLS needs both"),
+        };
+        let max_message = usize::try_from(a.max_message)
+            .with_context(|| format!("--max-message {} is too large", a.max_message))?;
+        let config = WorkerConfig {
+            listen: a.listen,
+            threads: a.threads.unwrap_or(defaults.threads),
+            token,
+            tls,
+            max_memory: a.max_memory.unwrap_or(defaults.max_memory),
+            max_message,
+            idle_timeout: (a.idle_timeout > 0).then(|| Duration::from_secs(a.idle_timeout)),
+            kernel: Kernel::from_name(&a.kernel)?,
+        };
+        config.validate()?;
+        Ok(config)
+    }
+}
+
+/// Reads the token from the first line of stdin (`--token-stdin`).
+fn read_token_stdin() -> anyhow::Result<String> {
+    let mut line = String::new();
+    std::io::stdin()
+        .read_line(&mut line)
+        .context("cannot read the token from stdin")?;
+    read_token(&line).context("--token-stdin: send the shared token on the first line of stdin")
+}
+
+/// Runs the command: serve (the default) or a health check.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        None => serve(cli.serve),
+        Some(Command::Serve(a)) => serve(a),
+        Some(Command::Health(a)) => crate::health::check(
+            &a.address,
+            a.token_file.as_deref(),
+            Duration::from_secs_f64(a.timeout.clamp(0.1, 600.0)),
+        ),
+    }
+}
+
+fn serve(args: ServeArgs) -> anyhow::Result<()> {
+    let exit_on_stdin_close = args.exit_on_stdin_close;
+    let config = WorkerConfig::try_from(args)?;
+    crate::process::serve(config, exit_on_stdin_close)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn byte_counts_parse() {
+        assert_eq!(parse_bytes("123"), Ok(123));
+        assert_eq!(parse_bytes("64K"), Ok(64 << 10));
+        assert_eq!(parse_bytes("64m"), Ok(64 << 20));
+        assert_eq!(parse_bytes(" 8G "), Ok(8 << 30));
+        assert!(parse_bytes("x").is_err());
+        assert!(parse_bytes("99999999999G").is_err());
+    }
+
+    #[test]
+    fn no_subcommand_serves() {
+        let cli = Cli::try_parse_from(["texsyn-worker", "--listen", "127.0.0.1:0"]).unwrap();
+        assert!(cli.command.is_none());
+        assert_eq!(cli.serve.listen, "127.0.0.1:0".parse().unwrap());
+        assert!(Cli::try_parse_from(["texsyn-worker", "bench"]).is_err());
+        assert!(Cli::try_parse_from([
+            "texsyn-worker",
+            "serve",
+            "--token-stdin",
+            "--token-file",
+            "t"
+        ])
+        .is_err());
+    }
+}
