@@ -2,5 +2,4 @@
 //! master over the `texsyn.v1.Worker` protocol of `texsyn-proto`
 //! (ARCHITECTURE §4).
 
-pub mod bench;
 pub mod service;

@@ -1,7 +1,7 @@
-//! `texsyn-worker`: the search engine as a gRPC worker, and its benchmark.
+//! `texsyn-worker`: the search engine as a gRPC worker.
 //!
 //! `texsyn-worker serve --listen ADDR ...` (or just `texsyn-worker --listen ADDR ...`)
-//! serves the engine; `texsyn-worker bench` measures the kernel.
+//! serves the engine; `texsyn-worker health` probes a running worker.
 use std::io::Write;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -13,14 +13,13 @@ use clap::{Parser, Subcommand};
 use texsyn_engine::Kernel;
 use texsyn_proto::auth::{read_token, read_token_file, BearerAuth};
 use texsyn_proto::wire::listening_line;
-use texsyn_worker::bench::{self, BenchConfig};
 use texsyn_worker::service::{self, TlsIdentity, WorkerConfig, DEFAULT_LISTEN};
 
 #[derive(Parser)]
 #[command(
     name = "texsyn-worker",
     version,
-    about = "texsyn search worker and kernel benchmark",
+    about = "texsyn search worker",
     args_conflicts_with_subcommands = true,
     after_help = "Without a subcommand the worker serves: texsyn-worker --listen 127.0.0.1:7878"
 )]
@@ -39,11 +38,6 @@ enum Command {
                       Example: texsyn-worker serve --listen 0.0.0.0:7878 --token-file /etc/texsyn/token"
     )]
     Serve(ServeArgs),
-    /// Measure the search kernel: GB/s per core for single queries and batches.
-    #[command(
-        after_help = "Example: texsyn-worker bench --vectors 240000 --dims 192 --queries 64"
-    )]
-    Bench(BenchArgs),
     /// Ask a running worker's health service; exit 0 when it is SERVING (for
     /// container and Kubernetes probes).
     #[command(
@@ -154,14 +148,10 @@ impl TryFrom<ServeArgs> for WorkerConfig {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let default_level = match cli.command {
-        Some(Command::Bench(_)) => "warn",
-        _ => "info",
-    };
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_level)),
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .with_writer(std::io::stderr)
         .init();
@@ -178,7 +168,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         None => serve(cli.serve),
         Some(Command::Serve(a)) => serve(a),
-        Some(Command::Bench(a)) => bench(a),
         Some(Command::Health(a)) => health(a),
     }
 }
@@ -311,70 +300,4 @@ async fn shutdown_signal() {
         () = ctrl_c => {}
         () = term => {}
     }
-}
-
-#[derive(clap::Args)]
-struct BenchArgs {
-    /// Number of reference vectors.
-    #[arg(long, default_value_t = 240_000)]
-    vectors: usize,
-    /// Components per vector (hi part).
-    #[arg(long, default_value_t = 192)]
-    dims: usize,
-    /// Components of the lo (parent) part.
-    #[arg(long, default_value_t = 0)]
-    lo_dims: usize,
-    /// Queries per batch.
-    #[arg(long, default_value_t = 64)]
-    queries: usize,
-    /// Rayon threads (GB/s are reported per thread).
-    #[arg(long, default_value_t = 1)]
-    threads: usize,
-    /// Kernel: auto, scalar, avx2, avx512.
-    #[arg(long, default_value = "auto")]
-    kernel: String,
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Share of query components defined (masks), 0..=1.
-    #[arg(long, default_value_t = 1.0)]
-    defined: f64,
-    /// Minimum seconds per measurement (best repetition reported).
-    #[arg(long, default_value_t = 1.0)]
-    min_time: f64,
-    /// Raw u8 vector file instead of random vectors.
-    #[arg(long)]
-    vectors_file: Option<std::path::PathBuf>,
-    /// Raw u8 query file instead of random queries.
-    #[arg(long)]
-    queries_file: Option<std::path::PathBuf>,
-    /// Write the batched answers ("index distance" per line) to this file.
-    #[arg(long)]
-    answers_file: Option<std::path::PathBuf>,
-    /// Print JSON instead of text.
-    #[arg(long)]
-    json: bool,
-}
-
-fn bench(a: BenchArgs) -> anyhow::Result<()> {
-    let cfg = BenchConfig {
-        vectors: a.vectors,
-        dims: a.dims,
-        lo_dims: a.lo_dims,
-        queries: a.queries,
-        threads: a.threads,
-        kernel: Kernel::from_name(&a.kernel)?,
-        seed: a.seed,
-        defined: a.defined,
-        min_time: Duration::from_secs_f64(a.min_time.max(0.0)),
-        vectors_file: a.vectors_file,
-        queries_file: a.queries_file,
-        answers_file: a.answers_file,
-    };
-    let report = bench::run(&cfg)?;
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-    } else {
-        print!("{report}");
-    }
-    Ok(())
 }
