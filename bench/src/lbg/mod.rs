@@ -132,20 +132,21 @@ impl Bench<'_> {
 
     /// One row per probe count for level `l`; the grid on level 0 of (b).
     fn level_rows(&self, l: &RecordedLevel, seed: u64, case_b: bool) -> Result<()> {
-        let n = l.positions.len() as u64;
+        let d = &l.data;
+        let n = d.total();
         let space =
-            VectorSpace::build_from_positions(&l.sample(), &l.geometry, &l.positions, 0..n)?;
-        let lcfg = self.lbg_config(seed, l.level);
+            VectorSpace::build_from_positions(&d.sample(), &d.geometry, &d.positions, 0..n)?;
+        let lcfg = self.lbg_config(seed, d.level);
         let cb = self
             .pool
-            .install(|| Codebook::train(&self.engine, &space, 0..n, &l.params, &lcfg))?;
+            .install(|| Codebook::train(&self.engine, &space, 0..n, &d.params, &lcfg))?;
         let st = cb.stats().clone();
         let queries: usize = l.batches.iter().map(QueryBatch::len).sum();
         for &p in &self.args.lbg_probes {
             if p > cb.seeds_requested() {
                 println!(
                     "    {:>5} {:>6} {:>8} {:>5} {:>5} {:>8.4} | {p:>2}  (more probes than seeds; skipped)",
-                    l.level, n, queries, st.seeds, st.iterations, st.train_seconds
+                    d.level, n, queries, st.seeds, st.iterations, st.train_seconds
                 );
                 continue;
             }
@@ -155,7 +156,7 @@ impl Bench<'_> {
             let err = LbgErrors::of(&l.exact, &got);
             println!(
                 "    {:>5} {:>6} {:>8} {:>5} {:>5} {:>8.4} | {p:>2} {:>14.4} {:>13.4} {:>8.1}x {:>11.1}x | {:>5.1}% {:>6.1}% {:>9.2}% {:>9.2}%",
-                l.level,
+                d.level,
                 n,
                 queries,
                 st.seeds,
@@ -171,7 +172,7 @@ impl Bench<'_> {
                 err.total_excess * 100.0
             );
         }
-        if self.args.lbg_grid && case_b && l.level == 0 {
+        if self.args.lbg_grid && case_b && d.level == 0 {
             self.grid(l, &space, &lcfg)?;
         }
         Ok(())
@@ -179,7 +180,7 @@ impl Bench<'_> {
 
     /// Training set per seed × iteration cap on level `l`, P = 1.
     fn grid(&self, l: &RecordedLevel, space: &VectorSpace, lcfg: &LbgConfig) -> Result<()> {
-        let n = l.positions.len() as u64;
+        let n = l.data.total();
         println!("    grid on level 0, P = 1 (training set per seed × iteration cap):");
         for per_seed in [0usize, 256, 64, 32, 16] {
             for cap in [3usize, 5, 10, 20, 50] {
@@ -188,9 +189,9 @@ impl Bench<'_> {
                     max_iterations: cap,
                     ..*lcfg
                 };
-                let cb = self
-                    .pool
-                    .install(|| Codebook::train(&self.engine, space, 0..n, &l.params, &gcfg))?;
+                let cb = self.pool.install(|| {
+                    Codebook::train(&self.engine, space, 0..n, &l.data.params, &gcfg)
+                })?;
                 let got = self.search_all(&cb, l, 1)?;
                 let err = LbgErrors::of(&l.exact, &got);
                 let s = cb.stats();

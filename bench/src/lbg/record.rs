@@ -5,30 +5,15 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use texsyn::search::{LevelData, LocalSearch, SearchBackend};
-use texsyn_engine::{Geometry, Hit, OwnedPlane, Params, QueryBatch, Sample};
+use texsyn_engine::{Hit, OwnedLevel, QueryBatch};
 
 /// One level of an exhaustive run: its reference data, every query batch and
 /// the exact answers.
 pub struct RecordedLevel {
-    pub level: usize,
-    pub geometry: Geometry,
-    pub params: Params,
-    fine: OwnedPlane,
-    parent: Option<OwnedPlane>,
-    pub positions: Vec<[u32; 2]>,
+    pub data: OwnedLevel,
     pub batches: Vec<QueryBatch>,
     pub exact: Vec<Vec<Hit>>,
     pub search_seconds: f64,
-}
-
-impl RecordedLevel {
-    /// The level's sample planes.
-    pub fn sample(&self) -> Sample<'_> {
-        Sample {
-            fine: self.fine.view(),
-            parent: self.parent.as_ref().map(OwnedPlane::view),
-        }
-    }
 }
 
 /// Exhaustive search that records what it was asked and answered.
@@ -53,12 +38,7 @@ impl SearchBackend for Recorder {
 
     fn load_level(&mut self, level: &LevelData) -> Result<()> {
         self.levels.push(RecordedLevel {
-            level: level.level,
-            geometry: level.geometry,
-            params: level.params,
-            fine: OwnedPlane::of(&level.sample.fine),
-            parent: level.sample.parent.as_ref().map(OwnedPlane::of),
-            positions: level.positions.to_vec(),
+            data: level.owned_level(),
             batches: Vec::new(),
             exact: Vec::new(),
             search_seconds: 0.0,
