@@ -2,7 +2,7 @@
 """Compare texsyn's exact masked-L1 search with faiss IndexFlat(METRIC_L1).
 
 Generates seeded random u8 vectors and queries (all components defined), runs
-`texsyn-worker bench` on them as raw files, searches the same data with faiss
+`texsyn-bench kernel` on them as raw files, searches the same data with faiss
 on float32 copies (k=1), checks that both give the same best distance for every
 query (indices may differ only on exact ties), and prints seconds per batch,
 queries/s and effective GB/s (N x D bytes x Q / time) for both.
@@ -35,7 +35,7 @@ except ImportError as e:  # pragma: no cover - depends on the environment
     sys.exit(2)
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_WORKER = REPO_ROOT / "target" / "release" / "texsyn-worker"
+DEFAULT_BENCH = REPO_ROOT / "target" / "release" / "texsyn-bench"
 
 
 def parse_args() -> argparse.Namespace:
@@ -57,10 +57,10 @@ def parse_args() -> argparse.Namespace:
         "--kernel", default="auto", help="texsyn kernel: auto, scalar, avx2, avx512"
     )
     p.add_argument(
-        "--texsyn-worker",
+        "--texsyn-bench",
         type=Path,
         default=None,
-        help=f"texsyn-worker binary (default: {DEFAULT_WORKER.relative_to(REPO_ROOT)} "
+        help=f"texsyn-bench binary (default: {DEFAULT_BENCH.relative_to(REPO_ROOT)} "
         "under the repo root, built with cargo if missing)",
     )
     p.add_argument("--json", action="store_true", help="print machine-readable results")
@@ -73,30 +73,30 @@ def parse_args() -> argparse.Namespace:
     return a
 
 
-def worker_binary(path: Path | None) -> Path:
+def bench_binary(path: Path | None) -> Path:
     if path is not None:
         if not path.is_file():
-            sys.exit(f"faiss_compare: texsyn-worker binary {path} not found")
+            sys.exit(f"faiss_compare: texsyn-bench binary {path} not found")
         return path
-    if not DEFAULT_WORKER.is_file():
+    if not DEFAULT_BENCH.is_file():
         print(
-            "faiss_compare: building texsyn-worker (cargo build --release -p texsyn-worker)",
+            "faiss_compare: building texsyn-bench (cargo build --release -p texsyn-bench)",
             file=sys.stderr,
         )
         subprocess.run(
-            ["cargo", "build", "--release", "-p", "texsyn-worker"],
+            ["cargo", "build", "--release", "-p", "texsyn-bench"],
             cwd=REPO_ROOT,
             check=True,
         )
-        if not DEFAULT_WORKER.is_file():
-            sys.exit(f"faiss_compare: cargo did not produce {DEFAULT_WORKER}")
-    return DEFAULT_WORKER
+        if not DEFAULT_BENCH.is_file():
+            sys.exit(f"faiss_compare: cargo did not produce {DEFAULT_BENCH}")
+    return DEFAULT_BENCH
 
 
 def run_texsyn(binary: Path, a: argparse.Namespace, vfile: Path, qfile: Path, afile: Path):
     cmd = [
         str(binary),
-        "bench",
+        "kernel",
         "--vectors", str(a.vectors),
         "--dims", str(a.dims),
         "--queries", str(a.queries),
@@ -141,7 +141,7 @@ def l1(xb: np.ndarray, i: int, q: np.ndarray) -> int:
 def main() -> int:
     a = parse_args()
     n, d, nq = a.vectors, a.dims, a.queries
-    binary = worker_binary(a.texsyn_worker)
+    binary = bench_binary(a.texsyn_bench)
 
     rng = np.random.default_rng(a.seed)
     xb = rng.integers(0, 256, size=(n, d), dtype=np.uint8)

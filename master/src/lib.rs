@@ -1,7 +1,6 @@
 //! texsyn: exact multi-scale block texture synthesis after Stahlhut, with the
 //! nearest-neighbour search on this machine or on a cluster of workers.
 
-pub mod benchmark;
 pub mod cli;
 pub mod cluster;
 pub mod colour;

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{bail, ensure, Context, Result};
+use anyhow::{ensure, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use texsyn_engine::{Engine, Metric, Weights};
@@ -19,7 +19,8 @@ const EXAMPLES: &str = "Examples:
   texsyn fill photo.png --mask holes.png -o out.png
   texsyn synth sample.png -o out.png --size 512x512
   texsyn synth sample.png -o out.png --size 256x256 --method scanline --report run.json
-  texsyn bench paper";
+
+Benchmarks are a separate binary: cargo run --release -p texsyn-bench -- paper";
 
 #[derive(Parser, Debug)]
 #[command(
@@ -46,8 +47,6 @@ pub enum Command {
     /// Synthesise a new texture of any size from the sample.
     #[command(after_help = "Example: texsyn synth sample.png -o out.png --size 512x512 --seed 7")]
     Synth(SynthArgs),
-    /// Benchmarks: the paper's configurations end to end.
-    Bench(BenchArgs),
     /// Search cluster tools.
     #[command(subcommand)]
     Cluster(ClusterCommand),
@@ -185,53 +184,6 @@ pub struct SynthArgs {
 pub enum MethodArg {
     Grow,
     Scanline,
-}
-
-#[derive(Args, Debug)]
-pub struct BenchArgs {
-    /// Which configuration: a = 192×192 from 64×64 (9×9, 3×3, 3 levels); b = 1000×1000
-    /// from 500×500 (11×11, 5×5); paper = both; lbg = LBG against exhaustive search
-    /// per level of (a) and (b) for P = 1, 2, 4, then (b) end to end with LBG on
-    /// the finest level; cluster = 2 local workers (1 thread each) against the local
-    /// engine (2 threads) on the finest level of (b): latency, throughput ratio, memory.
-    #[arg(default_value = "paper")]
-    pub which: String,
-    /// Directory with the texture photos (default ../shared/textures).
-    #[arg(long)]
-    pub textures: Option<PathBuf>,
-    /// Batch size K.
-    #[arg(long, default_value_t = 64)]
-    pub batch: usize,
-    /// Repetitions of configuration (a), or rounds of bench cluster, or of the end-to-end (b) run of bench lbg; the best is reported.
-    #[arg(long, default_value_t = 5)]
-    pub reps: usize,
-    /// Search threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// Write the outputs into this directory.
-    #[arg(long)]
-    pub out: Option<PathBuf>,
-    /// bench lbg: probes to measure (comma-separated).
-    #[arg(long, value_delimiter = ',', default_value = "1,2,4")]
-    pub lbg_probes: Vec<usize>,
-    /// bench cluster: batches measured (of --batch queries each).
-    #[arg(long, default_value_t = 60)]
-    pub batches: usize,
-    /// bench cluster: the texsyn-worker executable (default: next to texsyn, else PATH).
-    #[arg(long)]
-    pub worker_binary: Option<PathBuf>,
-    /// bench lbg: training threshold (relative change of the seed displacement).
-    #[arg(long, default_value_t = texsyn_engine::lbg::DEFAULT_THRESHOLD)]
-    pub lbg_threshold: f64,
-    /// bench lbg: training vectors per seed (0 = all vectors).
-    #[arg(long, default_value_t = texsyn_engine::lbg::DEFAULT_SAMPLE_PER_SEED)]
-    pub lbg_sample_per_seed: usize,
-    /// bench lbg: cap on training iterations.
-    #[arg(long, default_value_t = texsyn_engine::lbg::DEFAULT_MAX_ITERATIONS)]
-    pub lbg_max_iterations: usize,
-    /// bench lbg: also sweep training set size × iteration cap on the finest level of (b).
-    #[arg(long)]
-    pub lbg_grid: bool,
 }
 
 /// Parses `WxH`.
@@ -509,15 +461,6 @@ pub fn run(cli: Cli) -> Result<()> {
                 &a.common,
             )
         }
-        Command::Bench(a) => crate::benchmark::run(&a),
         Command::Cluster(ClusterCommand::Status(a)) => crate::cluster::status::run(&a),
     }
-}
-
-/// Fails unless `path` is an existing directory (used by the bench).
-pub(crate) fn existing_dir(path: &Path) -> Result<()> {
-    if !path.is_dir() {
-        bail!("{} is not a directory", path.display());
-    }
-    Ok(())
 }

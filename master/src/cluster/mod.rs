@@ -22,7 +22,6 @@
 //! `require_cluster`, fails).
 
 pub mod args;
-pub mod bench;
 pub mod conn;
 pub mod hosts;
 pub mod local;

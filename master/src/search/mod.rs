@@ -15,7 +15,9 @@ pub use local::LocalSearch;
 pub use plan::{level_cost, Plan, PlannedSearch, Strategy};
 
 use anyhow::{ensure, Result};
-use texsyn_engine::{Geometry, Hit, Layout, Params, QueryBatch, Sample, VectorSpace};
+use texsyn_engine::{
+    Geometry, Hit, Layout, OwnedLevel, OwnedPlane, Params, QueryBatch, Sample, VectorSpace,
+};
 
 /// A level's reference data as the search sees it: the sample planes (the level
 /// and its parent), the geometry and the comparison parameters.
@@ -34,6 +36,21 @@ pub struct LevelData<'a> {
     /// windows per part) in this layout, instead of luminance vectors built from
     /// `sample`. Only backends on this machine accept it.
     pub colour_vectors: Option<(Layout, &'a [u8])>,
+}
+
+impl LevelData<'_> {
+    /// A copy of the level's planes, geometry, parameters and positions (what
+    /// a backend keeps to rebuild vectors later).
+    pub fn owned_level(&self) -> OwnedLevel {
+        OwnedLevel {
+            level: self.level,
+            geometry: self.geometry,
+            params: self.params,
+            fine: OwnedPlane::of(&self.sample.fine),
+            parent: self.sample.parent.as_ref().map(OwnedPlane::of),
+            positions: self.positions.to_vec(),
+        }
+    }
 }
 
 /// The level's reference vectors on this machine: luminance vectors built from

@@ -1,6 +1,6 @@
-//! `texsyn bench cluster`: the cluster on loopback against the local engine
-//! (ARCHITECTURE §4, §5). On the finest level of the paper's configuration (b)
-//! (500×500 sample, 11×11 neighbourhood, 7×7 parent window) it measures
+//! `texsyn-bench cluster`: the cluster on loopback against the local engine
+//! (ARCHITECTURE §4, §5, §6). On the finest level of the paper's configuration
+//! (b) (500×500 sample, 11×11 neighbourhood, 7×7 parent window) it measures
 //!
 //! - the round-trip latency per batch (and per 1-query batch), against the
 //!   search time the workers report;
@@ -11,32 +11,44 @@
 //!
 //! The cluster's answers are checked against the local engine's on every batch.
 
-use std::path::Path;
+use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
+use clap::Args;
 use rand::{Rng, SeedableRng};
-use texsyn_engine::{Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample, Weights};
+use texsyn::cluster::{find_worker_binary, ClusterOptions, ClusterSearch, LocalWorkers};
+use texsyn::search::{LevelData, LocalSearch, SearchBackend};
+use texsyn::{imaging, pyramid};
+use texsyn_engine::{
+    Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample, VectorSpace, Weights,
+};
 
-use super::{find_worker_binary, ClusterOptions, ClusterSearch, LocalWorkers};
-use crate::imaging;
-use crate::pyramid;
-use crate::search::{LevelData, LocalSearch, SearchBackend};
+use crate::cases::Textures;
 
-/// What `texsyn bench cluster` needs.
-pub struct ClusterBench<'a> {
-    pub textures: &'a Path,
-    /// Queries per batch.
+/// Batches searched before the measured ones.
+const WARM: usize = 3;
+
+#[derive(Args, Debug)]
+pub struct ClusterArgs {
+    #[command(flatten)]
+    pub textures: Textures,
+    /// Queries per batch (K).
+    #[arg(long, default_value_t = 64)]
     pub batch: usize,
     /// Batches measured (after 3 warm-up batches).
+    #[arg(long, default_value_t = 60)]
     pub batches: usize,
     /// Rounds, alternating local and cluster; the best of each is compared.
-    pub rounds: usize,
-    pub worker_binary: Option<&'a Path>,
+    #[arg(long, default_value_t = 5)]
+    pub reps: usize,
+    /// The texsyn-worker executable (default: next to texsyn-bench, else PATH).
+    #[arg(long)]
+    pub worker_binary: Option<PathBuf>,
 }
 
 /// Peak resident memory (VmHWM) of a process in bytes, from /proc.
-pub fn peak_memory(pid: u32) -> Option<u64> {
+fn peak_memory(pid: u32) -> Option<u64> {
     let s = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
     let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
@@ -58,7 +70,7 @@ fn ms(s: f64) -> String {
 /// Random query batches made from reference vectors with about a third of the
 /// hi components masked out (as on a partly synthesised canvas).
 fn make_batches(
-    space: &texsyn_engine::VectorSpace,
+    space: &VectorSpace,
     count: usize,
     per: usize,
     seed: u64,
@@ -72,8 +84,7 @@ fn make_batches(
             let idx = rng.random_range(space.start()..space.end());
             let v = space.vector(idx).context("vector")?;
             let mut values = Vec::with_capacity(l.dims());
-            values.extend_from_slice(&v[..l.hi_len]);
-            values.extend_from_slice(&v[l.hi_pad..l.hi_pad + l.lo_len]);
+            l.unpad_into(v, &mut values);
             for x in &mut values {
                 *x = x.saturating_add(rng.random_range(0..3));
             }
@@ -87,12 +98,109 @@ fn make_batches(
     Ok(out)
 }
 
-pub fn run(b: &ClusterBench) -> Result<()> {
+/// The best round of the local engine and of the cluster.
+#[derive(Default)]
+struct Rounds {
+    local_qps: f64,
+    cluster_qps: f64,
+    /// Cluster over local throughput of each round, sorted.
+    ratios: Vec<f64>,
+    /// Round trips of the cluster's best round, sorted.
+    rtts: Vec<f64>,
+    /// The workers' own search seconds per batch in the cluster's best round.
+    worker_per_batch: [f64; 2],
+}
+
+/// Each worker's search seconds so far, from the cluster's stats.
+fn worker_seconds(c: &ClusterSearch) -> Vec<f64> {
+    c.stats()["workers"]
+        .as_array()
+        .map(|w| w.iter().filter_map(|x| x["seconds"].as_f64()).collect())
+        .unwrap_or_default()
+}
+
+/// Rounds alternate the two, so a noisy neighbour on the machine hits both alike.
+fn measure(
+    a: &ClusterArgs,
+    pool: &rayon::ThreadPool,
+    local: &mut LocalSearch,
+    cluster: &mut ClusterSearch,
+    batches: &[QueryBatch],
+) -> Result<Rounds> {
+    let queries = (a.batches * a.batch) as f64;
+    let mut r = Rounds::default();
+    for _ in 0..a.reps.max(1) {
+        let mut truth: Vec<Vec<Hit>> = Vec::new();
+        let mut local_seconds = 0.0;
+        pool.install(|| -> Result<()> {
+            for (i, q) in batches.iter().enumerate() {
+                let t = Instant::now();
+                let h = local.search(q)?;
+                if i >= WARM {
+                    local_seconds += t.elapsed().as_secs_f64();
+                }
+                truth.push(h);
+            }
+            Ok(())
+        })?;
+        let mut round_rtts = Vec::new();
+        let mut cluster_seconds = 0.0;
+        let mut before = worker_seconds(cluster);
+        for (i, q) in batches.iter().enumerate() {
+            if i == WARM {
+                before = worker_seconds(cluster);
+            }
+            let t = Instant::now();
+            let h = cluster.search(q)?;
+            let dt = t.elapsed().as_secs_f64();
+            ensure!(
+                h == truth[i],
+                "batch {i}: the cluster's answers differ from the local engine's"
+            );
+            if i >= WARM {
+                cluster_seconds += dt;
+                round_rtts.push(dt);
+            }
+        }
+        let after = worker_seconds(cluster);
+        let (lq, cq) = (queries / local_seconds, queries / cluster_seconds);
+        r.ratios.push(cq / lq);
+        if cq > r.cluster_qps {
+            r.cluster_qps = cq;
+            r.rtts = round_rtts;
+            for (k, w) in r.worker_per_batch.iter_mut().enumerate() {
+                *w = (after.get(k).unwrap_or(&0.0) - before.get(k).unwrap_or(&0.0))
+                    / a.batches as f64;
+            }
+        }
+        r.local_qps = r.local_qps.max(lq);
+    }
+    r.ratios.sort_by(f64::total_cmp);
+    Ok(r)
+}
+
+/// Round trips of 1-query batches (the first query of the first 20 batches):
+/// the fixed cost of a round trip, sorted.
+fn one_query_trips(cluster: &mut ClusterSearch, batches: &[QueryBatch]) -> Result<Vec<f64>> {
+    let mut small = Vec::new();
+    for q in batches.iter().take(20) {
+        let mut one = QueryBatch::new(q.layout());
+        let (values, mask) = q.unpadded_range(0..1);
+        one.push(&values, &mask)?;
+        let t = Instant::now();
+        cluster.search(&one)?;
+        small.push(t.elapsed().as_secs_f64());
+    }
+    small.sort_by(f64::total_cmp);
+    Ok(small)
+}
+
+pub fn run(a: &ClusterArgs) -> Result<()> {
     ensure!(
-        b.batch >= 1 && b.batches >= 1,
+        a.batch >= 1 && a.batches >= 1,
         "--batch and --batches must be ≥ 1"
     );
-    let file = b.textures.join("gravel_gray_500.png");
+    let file = a.textures.dir()?.join("gravel_gray_500.png");
     let img = imaging::load_color(&file)?;
     let lum = imaging::luminance(&img);
     let parent = pyramid::downsample(&lum, None, false);
@@ -113,7 +221,7 @@ pub fn run(b: &ClusterBench) -> Result<()> {
         sample,
         positions: &positions,
         levels: 1,
-        expected_queries: (b.batch * b.batches) as u64,
+        expected_queries: (a.batch * a.batches) as u64,
         colour_vectors: None,
     };
     let engine = Engine::default();
@@ -138,16 +246,11 @@ pub fn run(b: &ClusterBench) -> Result<()> {
     let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build()?;
     let mut local = LocalSearch::new(engine);
     pool.install(|| local.load_level(&data))?;
-    let full = texsyn_engine::VectorSpace::build_from_positions(
-        &data.sample,
-        &geometry,
-        &positions,
-        0..total as u64,
-    )?;
-    let warm = 3;
-    let batches = make_batches(&full, warm + b.batches, b.batch, 11)?;
+    let full =
+        VectorSpace::build_from_positions(&data.sample, &geometry, &positions, 0..total as u64)?;
+    let batches = make_batches(&full, WARM + a.batches, a.batch, 11)?;
     drop(full);
-    let binary = find_worker_binary(b.worker_binary)?;
+    let binary = find_worker_binary(a.worker_binary.as_deref())?;
     let workers = LocalWorkers::spawn(&binary, 2, Some(1), &[])?;
     let mut cluster = ClusterSearch::connect(
         ClusterOptions {
@@ -161,87 +264,22 @@ pub fn run(b: &ClusterBench) -> Result<()> {
     cluster.load_level(&data)?;
     let load_seconds = t.elapsed().as_secs_f64();
 
-    // Rounds alternate the two, so a noisy neighbour on the machine hits both alike.
-    let queries = (b.batches * b.batch) as f64;
-    let mut local_qps: f64 = 0.0;
-    let mut cluster_qps: f64 = 0.0;
-    let mut ratios = Vec::new();
-    let mut rtts = Vec::new();
-    let worker_seconds = |c: &ClusterSearch| -> Vec<f64> {
-        c.stats()["workers"]
-            .as_array()
-            .map(|w| w.iter().filter_map(|x| x["seconds"].as_f64()).collect())
-            .unwrap_or_default()
-    };
-    let mut worker_per_batch = [0.0; 2];
-    for _ in 0..b.rounds.max(1) {
-        let mut truth: Vec<Vec<Hit>> = Vec::new();
-        let mut local_seconds = 0.0;
-        pool.install(|| -> Result<()> {
-            for (i, q) in batches.iter().enumerate() {
-                let t = Instant::now();
-                let h = local.search(q)?;
-                if i >= warm {
-                    local_seconds += t.elapsed().as_secs_f64();
-                }
-                truth.push(h);
-            }
-            Ok(())
-        })?;
-        let mut round_rtts = Vec::new();
-        let mut cluster_seconds = 0.0;
-        let mut before = worker_seconds(&cluster);
-        for (i, q) in batches.iter().enumerate() {
-            if i == warm {
-                before = worker_seconds(&cluster);
-            }
-            let t = Instant::now();
-            let h = cluster.search(q)?;
-            let dt = t.elapsed().as_secs_f64();
-            ensure!(
-                h == truth[i],
-                "batch {i}: the cluster's answers differ from the local engine's"
-            );
-            if i >= warm {
-                cluster_seconds += dt;
-                round_rtts.push(dt);
-            }
-        }
-        let after = worker_seconds(&cluster);
-        let (lq, cq) = (queries / local_seconds, queries / cluster_seconds);
-        ratios.push(cq / lq);
-        if cq > cluster_qps {
-            cluster_qps = cq;
-            rtts = round_rtts;
-            for (k, w) in worker_per_batch.iter_mut().enumerate() {
-                *w = (after.get(k).unwrap_or(&0.0) - before.get(k).unwrap_or(&0.0))
-                    / b.batches as f64;
-            }
-        }
-        local_qps = local_qps.max(lq);
-    }
+    let mut rounds = measure(a, &pool, &mut local, &mut cluster, &batches)?;
     local.end_level();
     drop(local);
     let stats = cluster.stats();
-    ratios.sort_by(f64::total_cmp);
-    // 1-query batches: the fixed cost of a round trip.
-    let mut small = Vec::new();
-    for q in batches.iter().take(20) {
-        let mut one = QueryBatch::new(q.layout());
-        let l = q.layout();
-        let (v, m) = (q.values(0), q.mask(0));
-        let mut values = v[..l.hi_len].to_vec();
-        values.extend_from_slice(&v[l.hi_pad..l.hi_pad + l.lo_len]);
-        let mut mask = m[..l.hi_len].to_vec();
-        mask.extend_from_slice(&m[l.hi_pad..l.hi_pad + l.lo_len]);
-        one.push(&values, &mask)?;
-        let t = Instant::now();
-        cluster.search(&one)?;
-        small.push(t.elapsed().as_secs_f64());
-    }
-    rtts.sort_by(f64::total_cmp);
-    small.sort_by(f64::total_cmp);
+    let small = one_query_trips(&mut cluster, &batches)?;
+    rounds.rtts.sort_by(f64::total_cmp);
+    print_workers(&stats, load_seconds);
+    print_figures(a, &rounds, &small, total);
+    print_memory(&stats, &workers, stride as u64);
+    drop(cluster);
+    drop(workers);
+    Ok(())
+}
 
+/// The workers and their calibrated throughput.
+fn print_workers(stats: &serde_json::Value, load_seconds: f64) {
     println!(
         "cluster: 2 local workers x 1 thread ({}), level loaded and assigned in {}",
         stats["workers"]
@@ -258,39 +296,47 @@ pub fn run(b: &ClusterBench) -> Result<()> {
             .unwrap_or_default(),
         ms(load_seconds)
     );
-    let slowest = worker_per_batch.iter().copied().fold(0.0, f64::max);
-    let mean_rtt = rtts.iter().sum::<f64>() / rtts.len().max(1) as f64;
+}
+
+/// Latency per batch and per query, and the throughput ratio.
+fn print_figures(a: &ClusterArgs, r: &Rounds, small: &[f64], total: usize) {
+    let rounds = a.reps.max(1);
+    let slowest = r.worker_per_batch.iter().copied().fold(0.0, f64::max);
+    let mean_rtt = r.rtts.iter().sum::<f64>() / r.rtts.len().max(1) as f64;
     println!(
         "round trip per batch of {} queries (best of {} rounds): median {}  p90 {}  max {}; the workers' own search time per batch {} (slowest {}), so transport + merge + imbalance ≈ {} per batch",
-        b.batch,
-        b.rounds.max(1),
-        ms(percentile(&rtts, 0.5)),
-        ms(percentile(&rtts, 0.9)),
-        ms(percentile(&rtts, 1.0)),
-        worker_per_batch.iter().map(|&w| ms(w)).collect::<Vec<_>>().join(" / "),
+        a.batch,
+        rounds,
+        ms(percentile(&r.rtts, 0.5)),
+        ms(percentile(&r.rtts, 0.9)),
+        ms(percentile(&r.rtts, 1.0)),
+        r.worker_per_batch.iter().map(|&w| ms(w)).collect::<Vec<_>>().join(" / "),
         ms(slowest),
         ms(mean_rtt - slowest)
     );
     println!(
         "round trip per batch of 1 query: median {}  p90 {}",
-        ms(percentile(&small, 0.5)),
-        ms(percentile(&small, 0.9))
+        ms(percentile(small, 0.5)),
+        ms(percentile(small, 0.9))
     );
-    let ratio = cluster_qps / local_qps;
+    let ratio = r.cluster_qps / r.local_qps;
     println!(
         "throughput (best of {} rounds): local engine 2 threads {:.0} queries/s ({:.2} G pairs/s); cluster 2 workers x 1 thread {:.0} queries/s; ratio {:.3} (target >= 0.85: {}); per-round ratios min {:.3} median {:.3} max {:.3}",
-        b.rounds.max(1),
-        local_qps,
-        local_qps * total as f64 / 1e9,
-        cluster_qps,
+        rounds,
+        r.local_qps,
+        r.local_qps * total as f64 / 1e9,
+        r.cluster_qps,
         ratio,
         if ratio >= 0.85 { "met" } else { "NOT met" },
-        percentile(&ratios, 0.0),
-        percentile(&ratios, 0.5),
-        percentile(&ratios, 1.0)
+        percentile(&r.ratios, 0.0),
+        percentile(&r.ratios, 0.5),
+        percentile(&r.ratios, 1.0)
     );
-    // Peak memory against each worker's range.
-    let ranges: Vec<(String, u64)> = stats["events"]
+}
+
+/// Each worker's vector range (address, vectors) in the last partition of the run report.
+fn worker_ranges(stats: &serde_json::Value) -> Vec<(String, u64)> {
+    stats["events"]
         .as_array()
         .and_then(|e| {
             e.iter()
@@ -308,14 +354,19 @@ pub fn run(b: &ClusterBench) -> Result<()> {
                 })
                 .collect()
         })
-        .unwrap_or_default();
+        .unwrap_or_default()
+}
+
+/// Peak memory against each worker's range.
+fn print_memory(stats: &serde_json::Value, workers: &LocalWorkers, stride: u64) {
+    let ranges = worker_ranges(stats);
     for w in &workers.workers {
         let addr = w.address.to_string();
         let len = ranges
             .iter()
             .find(|(a, _)| *a == addr)
             .map_or(0, |(_, l)| *l);
-        let range_bytes = len * stride as u64;
+        let range_bytes = len * stride;
         let limit = range_bytes as f64 * 1.2 + 64e6;
         match peak_memory(w.pid()) {
             Some(hwm) => println!(
@@ -328,7 +379,4 @@ pub fn run(b: &ClusterBench) -> Result<()> {
             None => println!("worker {addr}: peak memory not readable (no /proc)"),
         }
     }
-    drop(cluster);
-    drop(workers);
-    Ok(())
 }

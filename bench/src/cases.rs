@@ -1,0 +1,150 @@
+//! The paper's two configurations (Stahlhut Table 1 and §10.2, ARCHITECTURE §6)
+//! and what the benchmarks that run them share: the texture directory, the
+//! options of a run and the thread pool.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use texsyn::imaging::ColorImage;
+use texsyn::{Config, Mode, SynthMethod};
+
+/// One of the paper's configurations.
+pub struct Case {
+    pub name: &'static str,
+    pub file: &'static str,
+    pub size: usize,
+    pub block: usize,
+    pub neighbourhood: usize,
+    pub levels: usize,
+}
+
+impl Case {
+    /// The configuration and mode of this case with batch size `batch`.
+    pub fn run(&self, batch: usize) -> (Config, Mode) {
+        let cfg = Config {
+            block: self.block,
+            neighbourhood: self.neighbourhood,
+            levels: self.levels,
+            batch,
+            ..Config::default()
+        };
+        let mode = Mode::Synth {
+            width: self.size,
+            height: self.size,
+            method: SynthMethod::Grow,
+        };
+        (cfg, mode)
+    }
+
+    /// `(a) 192x192 from brick_gray_64.png (64x64), 9x9 neighbourhood, 3x3
+    /// blocks, 3 levels`: the start of this case's line in a table.
+    pub fn describe(&self, sample: &ColorImage, levels: usize) -> String {
+        format!(
+            "({}) {}x{} from {} ({}x{}), {}x{} neighbourhood, {}x{} blocks, {} levels",
+            self.name,
+            self.size,
+            self.size,
+            self.file,
+            sample.width,
+            sample.height,
+            self.neighbourhood,
+            self.neighbourhood,
+            self.block,
+            self.block,
+            levels
+        )
+    }
+}
+
+/// (a) and (b) of Stahlhut Table 1.
+pub const CASES: [Case; 2] = [
+    Case {
+        name: "a",
+        file: "brick_gray_64.png",
+        size: 192,
+        block: 3,
+        neighbourhood: 9,
+        levels: 3,
+    },
+    Case {
+        name: "b",
+        file: "gravel_gray_500.png",
+        size: 1000,
+        block: 5,
+        neighbourhood: 11,
+        levels: 4,
+    },
+];
+
+/// Where the texture photos are.
+#[derive(Args, Debug)]
+pub struct Textures {
+    /// Directory with the texture photos (default: the repository's assets/textures).
+    #[arg(long)]
+    pub textures: Option<PathBuf>,
+}
+
+impl Textures {
+    /// `--textures`, else `assets/textures` under the current directory, else
+    /// the repository's `assets/textures`; it must be a directory.
+    pub fn dir(&self) -> Result<PathBuf> {
+        self.resolve()
+            .context("texture directory for the bench (give --textures DIR)")
+    }
+
+    fn resolve(&self) -> Result<PathBuf> {
+        let dir = self.textures.clone().unwrap_or_else(|| {
+            let here = PathBuf::from("assets/textures");
+            if here.is_dir() {
+                here
+            } else {
+                Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/textures")
+            }
+        });
+        if !dir.is_dir() {
+            bail!("{} is not a directory", dir.display());
+        }
+        Ok(dir)
+    }
+}
+
+/// The options of a bench that runs the paper's cases.
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub textures: Textures,
+    /// Batch size K.
+    #[arg(long, default_value_t = 64)]
+    pub batch: usize,
+    /// Repetitions (paper: of configuration (a); lbg: of the end-to-end (b) run);
+    /// the best is reported.
+    #[arg(long, default_value_t = 5)]
+    pub reps: usize,
+    /// Search threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Write the outputs into this directory.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+impl RunArgs {
+    /// The search threads of the run.
+    pub fn pool(&self) -> Result<rayon::ThreadPool> {
+        let mut b = rayon::ThreadPoolBuilder::new();
+        if let Some(t) = self.threads {
+            b = b.num_threads(t);
+        }
+        Ok(b.build()?)
+    }
+
+    /// Writes `image` as `name` into `--out`, if given.
+    pub fn save(&self, name: &str, image: &ColorImage) -> Result<()> {
+        if let Some(o) = &self.out {
+            std::fs::create_dir_all(o)?;
+            texsyn::imaging::save_color(&o.join(name), image)?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,78 @@
+//! `texsyn-bench`: texsyn's benchmarks (ARCHITECTURE §6), one subcommand each:
+//! the paper's configurations end to end (Stahlhut Table 1, §10.2), LBG
+//! against exhaustive search (Stahlhut §8), the cluster on loopback and the
+//! search kernel.
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod cases;
+mod cluster;
+mod kernel;
+mod lbg;
+mod paper;
+
+const EXAMPLES: &str = "Examples:
+  texsyn-bench paper
+  texsyn-bench paper --case a --reps 5 --out /tmp/bench
+  texsyn-bench lbg --lbg-probes 1,2,4
+  texsyn-bench cluster --batches 60
+  texsyn-bench kernel --vectors 240000 --dims 192 --queries 64
+
+Textures default to the repository's assets/textures (give --textures DIR elsewhere).";
+
+#[derive(Parser)]
+#[command(
+    name = "texsyn-bench",
+    version,
+    about = "texsyn benchmarks: the paper's configurations, LBG, the loopback cluster, the search kernel",
+    after_help = EXAMPLES
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// The paper's configurations end to end: (a) 192×192 from 64×64 (9×9, 3×3,
+    /// 3 levels) and (b) 1000×1000 from 500×500 (11×11, 5×5, 4 levels).
+    #[command(after_help = "Example: texsyn-bench paper --case a --reps 5")]
+    Paper(paper::PaperArgs),
+    /// LBG against exhaustive search per level of (a) and (b) for P = 1, 2, 4,
+    /// then (b) end to end with LBG on the finest level.
+    #[command(after_help = "Example: texsyn-bench lbg --lbg-probes 1,2,4 --reps 3")]
+    Lbg(lbg::LbgArgs),
+    /// 2 local workers (1 thread each) against the local engine (2 threads) on
+    /// the finest level of (b): latency, throughput ratio, memory.
+    #[command(after_help = "Example: texsyn-bench cluster --batch 64 --batches 60 --reps 5")]
+    Cluster(cluster::ClusterArgs),
+    /// The search kernel: GB/s per core for single queries and batches.
+    #[command(
+        after_help = "Example: texsyn-bench kernel --vectors 240000 --dims 192 --queries 64"
+    )]
+    Kernel(kernel::KernelArgs),
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let result = match Cli::parse().command {
+        Command::Paper(a) => paper::run(&a),
+        Command::Lbg(a) => lbg::run(&a),
+        Command::Cluster(a) => cluster::run(&a),
+        Command::Kernel(a) => kernel::run(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("texsyn-bench: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
