@@ -6,6 +6,7 @@ pub mod cli;
 pub mod cluster;
 pub mod colour;
 pub mod imaging;
+pub mod launch;
 pub mod lbg;
 pub mod neighbourhood;
 pub mod pyramid;

@@ -18,8 +18,9 @@ use anyhow::{ensure, Context, Result};
 use rand::{Rng, SeedableRng};
 use texsyn_engine::{Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample, Weights};
 
-use super::{find_worker_binary, ClusterOptions, ClusterSearch, LocalWorkers};
+use super::{ClusterOptions, ClusterSearch};
 use crate::imaging;
+use crate::launch::{find_worker_binary, LocalWorkers};
 use crate::pyramid;
 use crate::search::{LevelData, LocalSearch, SearchBackend};
 
