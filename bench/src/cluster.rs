@@ -17,7 +17,8 @@ use std::time::Instant;
 use anyhow::{ensure, Context, Result};
 use clap::Args;
 use rand::{Rng, SeedableRng};
-use texsyn::cluster::{find_worker_binary, ClusterOptions, ClusterSearch, LocalWorkers};
+use texsyn::cluster::{ClusterOptions, ClusterSearch};
+use texsyn::launch::{find_worker_binary, LocalWorkers};
 use texsyn::search::{LevelData, LocalSearch, SearchBackend};
 use texsyn::{imaging, pyramid};
 use texsyn_engine::{

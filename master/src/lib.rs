@@ -5,6 +5,7 @@ pub mod cli;
 pub mod cluster;
 pub mod colour;
 pub mod imaging;
+pub mod launch;
 pub mod neighbourhood;
 pub mod pyramid;
 pub mod queue;

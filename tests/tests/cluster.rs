@@ -9,62 +9,26 @@ mod harness;
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
-use harness::{sigcont, sigkill, sigstop, texture_path, Token, Worker};
+use harness::{
+    planned, sample, sigcont, sigkill, sigstop, synth, texture_path, Token, Worker, LEVELS,
+};
 use serde_json::Value;
 use texsyn::cluster::{ClusterOptions, ClusterSearch, WorkerSpec};
-use texsyn::imaging::{self, ColorImage};
-use texsyn::search::{LevelData, LocalSearch, Plan, PlannedSearch, SearchBackend, Strategy};
-use texsyn::synth::Silent;
-use texsyn::{synthesize, Config, Mode, Output, SynthMethod};
+use texsyn::search::{LevelData, SearchBackend, Strategy};
+use texsyn::Output;
 use texsyn_engine::{Engine, Hit, QueryBatch};
 use texsyn_proto::auth::BearerAuth;
 use texsyn_proto::v1 as pb;
 use texsyn_proto::PROTOCOL_VERSION;
 
-const LEVELS: usize = 3;
-
-fn sample() -> &'static ColorImage {
-    static S: OnceLock<ColorImage> = OnceLock::new();
-    S.get_or_init(|| imaging::load_color(&texture_path("brick_color_96.png")).unwrap())
-}
-
-fn config() -> Config {
-    Config {
-        block: 3,
-        neighbourhood: 9,
-        levels: LEVELS,
-        batch: 16,
-        seed: 5,
-        ..Config::default()
-    }
-}
-
-fn mode() -> Mode {
-    Mode::Synth {
-        width: 128,
-        height: 128,
-        method: SynthMethod::Grow,
-    }
-}
-
-fn pool() -> rayon::ThreadPool {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(2)
-        .build()
-        .unwrap()
-}
+/// Side of the synthesised texture.
+const SIDE: usize = 128;
 
 /// Image bytes and copy map of the local engine: the truth every cluster run must equal.
 fn reference() -> &'static (Vec<u8>, Vec<[u32; 2]>) {
     static R: OnceLock<(Vec<u8>, Vec<[u32; 2]>)> = OnceLock::new();
     R.get_or_init(|| {
-        let mut backend = PlannedSearch::new(
-            Plan::Levels(vec![Strategy::Local; LEVELS]),
-            LocalSearch::new(Engine::default()),
-        );
-        let out = pool()
-            .install(|| synthesize(sample(), &mode(), &config(), &mut backend, &Silent))
-            .unwrap();
+        let out = synth(&mut planned(Strategy::Local, None), SIDE).unwrap();
         (out.image.rgb, out.copy_map)
     })
 }
@@ -82,12 +46,7 @@ fn options(workers: Vec<WorkerSpec>) -> ClusterOptions {
 
 /// Runs the synthesis with every level on `cluster`.
 fn run(cluster: Box<dyn SearchBackend>) -> anyhow::Result<Output> {
-    let mut backend = PlannedSearch::new(
-        Plan::Levels(vec![Strategy::Cluster; LEVELS]),
-        LocalSearch::new(Engine::default()),
-    )
-    .with_cluster(cluster);
-    pool().install(|| synthesize(sample(), &mode(), &config(), &mut backend, &Silent))
+    synth(&mut planned(Strategy::Cluster, Some(cluster)), SIDE)
 }
 
 fn assert_same_as_local(out: &Output, what: &str) {
@@ -805,15 +764,12 @@ fn lbg_on_the_cluster_is_exact_with_all_probes_and_runs_with_one() {
     let workers: Vec<Worker> = (1..=2).map(|k| Worker::with_token(k, &token, 1)).collect();
     let specs: Vec<WorkerSpec> = workers.iter().map(|w| w.spec(Some(&token))).collect();
     for probes in [u32::MAX, 1] {
-        let mut backend = PlannedSearch::new(
-            Plan::Levels(vec![Strategy::ClusterLbg; LEVELS]),
-            LocalSearch::new(Engine::default()),
-        )
-        .with_cluster(Box::new(connect(options(specs.clone()))));
+        let mut backend = planned(
+            Strategy::ClusterLbg,
+            Some(Box::new(connect(options(specs.clone())))),
+        );
         backend.lbg_probes = probes;
-        let out = pool()
-            .install(|| synthesize(sample(), &mode(), &config(), &mut backend, &Silent))
-            .unwrap();
+        let out = synth(&mut backend, SIDE).unwrap();
         let plan = out.report.search_stats["plan"].as_array().unwrap();
         assert_eq!(plan.len(), LEVELS);
         assert!(

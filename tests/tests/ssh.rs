@@ -9,63 +9,22 @@ mod harness;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-use harness::texture_path;
-use texsyn::cluster::hosts::read_hosts_file_launch;
-use texsyn::cluster::ssh::SshWorkers;
+use harness::{planned, synth, texture_path};
 use texsyn::cluster::{ClusterOptions, ClusterSearch, WorkerSpec};
-use texsyn::imaging::{self, ColorImage};
-use texsyn::search::{LocalSearch, Plan, PlannedSearch, Strategy};
-use texsyn::synth::Silent;
-use texsyn::{synthesize, Config, Mode, Output, SynthMethod};
+use texsyn::launch::hosts::{read_hosts_file_launch, LaunchSpec};
+use texsyn::launch::ssh::SshWorkers;
+use texsyn::search::{SearchBackend, Strategy};
+use texsyn::Output;
 use texsyn_engine::Engine;
 
-const LEVELS: usize = 3;
-
-fn sample() -> &'static ColorImage {
-    static S: OnceLock<ColorImage> = OnceLock::new();
-    S.get_or_init(|| imaging::load_color(&texture_path("brick_color_96.png")).unwrap())
-}
-
-fn config() -> Config {
-    Config {
-        block: 3,
-        neighbourhood: 9,
-        levels: LEVELS,
-        batch: 16,
-        seed: 5,
-        ..Config::default()
-    }
-}
-
-fn mode() -> Mode {
-    Mode::Synth {
-        width: 96,
-        height: 96,
-        method: SynthMethod::Grow,
-    }
-}
-
-fn pool() -> rayon::ThreadPool {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(2)
-        .build()
-        .unwrap()
-}
+/// Side of the synthesised texture.
+const SIDE: usize = 96;
 
 fn run(strategy: Strategy, cluster: Option<ClusterSearch>) -> Output {
-    let mut backend = PlannedSearch::new(
-        Plan::Levels(vec![strategy; LEVELS]),
-        LocalSearch::new(Engine::default()),
-    );
-    if let Some(c) = cluster {
-        backend = backend.with_cluster(Box::new(c));
-    }
-    pool()
-        .install(|| synthesize(sample(), &mode(), &config(), &mut backend, &Silent))
-        .unwrap()
+    let cluster = cluster.map(|c| Box::new(c) as Box<dyn SearchBackend>);
+    synth(&mut planned(strategy, cluster), SIDE).unwrap()
 }
 
 /// Pids of processes whose command line contains `pattern`.
@@ -352,7 +311,7 @@ fn two_workers_launched_over_ssh_match_the_local_engine_and_are_gone_afterwards(
     }
 
     // An unreachable host is skipped with a reason.
-    let bad = vec![texsyn::cluster::hosts::LaunchSpec {
+    let bad = vec![LaunchSpec {
         ssh: format!("{}@127.0.0.1", sshd.user),
         binary: "/nonexistent/texsyn-worker".into(),
         ..launch[0].clone()

@@ -13,6 +13,9 @@ use crate::imaging::{self, ColorImage};
 use crate::lbg::LbgSearch;
 use crate::search::{LocalSearch, Plan, PlannedSearch};
 use crate::synth::{self, Config, Mode, Position, Progress, SynthMethod};
+pub use cluster::{run_status, ClusterArgs, ClusterSetup, StatusArgs};
+
+mod cluster;
 
 const EXAMPLES: &str = "Examples:
   texsyn extend sample.png -o out.png --size 1024x1024 --block 5 --neighbourhood 11 --levels 4 --tileable --seed 7
@@ -56,7 +59,7 @@ pub enum Command {
 pub enum ClusterCommand {
     /// Table of the workers: version, cores, threads, load, calibrated throughput, memory in use.
     #[command(after_help = "Example: texsyn cluster status --hosts hosts.toml --token-file token")]
-    Status(crate::cluster::status::StatusArgs),
+    Status(StatusArgs),
 }
 
 #[derive(Args, Debug, Clone)]
@@ -129,7 +132,7 @@ pub struct Common {
     #[arg(long, short)]
     pub quiet: bool,
     #[command(flatten)]
-    pub cluster: crate::cluster::ClusterArgs,
+    pub cluster: ClusterArgs,
 }
 
 #[derive(ValueEnum, Debug, Clone, Copy)]
@@ -461,6 +464,6 @@ pub fn run(cli: Cli) -> Result<()> {
                 &a.common,
             )
         }
-        Command::Cluster(ClusterCommand::Status(a)) => crate::cluster::status::run(&a),
+        Command::Cluster(ClusterCommand::Status(a)) => run_status(&a),
     }
 }

@@ -18,10 +18,69 @@ use tonic::codegen::InterceptedService;
 use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint};
 use tonic::{Request, Status, Streaming};
 
-use super::hosts::{split_address, WorkerSpec};
+use anyhow::{ensure, Context};
 use texsyn_engine::{check_part, CalibrationSize};
 
+use super::error::{ClusterError, ClusterResult};
+
 pub(crate) type Client = pb::worker_client::WorkerClient<InterceptedService<Channel, BearerAuth>>;
+
+/// One worker the master should use.
+#[derive(Clone, PartialEq, Eq)]
+pub struct WorkerSpec {
+    /// `host:port` (or `http(s)://host:port`) as the user wrote it.
+    pub address: String,
+    /// Shared token sent on every call, if the worker requires one.
+    pub token: Option<String>,
+}
+
+impl std::fmt::Debug for WorkerSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("WorkerSpec")
+            .field("address", &self.address)
+            .field("token", &self.token.as_ref().map(|_| "<redacted>"))
+            .finish()
+    }
+}
+
+impl WorkerSpec {
+    pub fn new(address: impl Into<String>, token: Option<String>) -> Self {
+        Self {
+            address: address.into(),
+            token,
+        }
+    }
+}
+
+/// Splits `host:port` (also `[v6]:port`, optionally prefixed with `http://` or
+/// `https://`) into host and port, checking both.
+pub fn split_address(address: &str) -> anyhow::Result<(String, u16)> {
+    let a = address.trim();
+    let a = a
+        .strip_prefix("http://")
+        .or_else(|| a.strip_prefix("https://"))
+        .unwrap_or(a)
+        .trim_end_matches('/');
+    let (host, port) = a.rsplit_once(':').with_context(|| {
+        format!("worker address '{address}' is not host:port, e.g. 192.168.1.20:7878")
+    })?;
+    let port: u16 = port
+        .parse()
+        .with_context(|| format!("port '{port}' of worker address '{address}' is not 1..=65535"))?;
+    ensure!(
+        port != 0,
+        "worker address '{address}' has port 0; give the port the worker printed"
+    );
+    let bare = host.trim_start_matches('[').trim_end_matches(']');
+    ensure!(
+        !bare.is_empty()
+            && bare
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | ':' | '_')),
+        "host '{host}' of worker address '{address}' is not a host name or IP address"
+    );
+    Ok((host.to_string(), port))
+}
 
 /// Largest answer the master decodes (answers are 24 bytes per query at most).
 const MAX_DECODE: usize = 256 << 20;
@@ -34,16 +93,19 @@ pub(crate) fn status_text(s: &Status) -> String {
 /// Runs `f` with a deadline of `d`: the result, or why there is none.
 pub(crate) async fn within<T>(
     d: Duration,
-    what: &str,
+    call: &'static str,
     f: impl Future<Output = Result<T, Status>>,
-) -> Result<T, String> {
+) -> ClusterResult<T> {
     match tokio::time::timeout(d, f).await {
         Ok(Ok(v)) => Ok(v),
-        Ok(Err(s)) => Err(format!("{what} failed: {}", status_text(&s))),
-        Err(_) => Err(format!(
-            "{what} missed its deadline of {} ms",
-            d.as_millis()
-        )),
+        Ok(Err(s)) => Err(ClusterError::Call {
+            call,
+            status: status_text(&s),
+        }),
+        Err(_) => Err(ClusterError::CallDeadline {
+            call,
+            ms: d.as_millis(),
+        }),
     }
 }
 
@@ -58,11 +120,12 @@ pub(crate) async fn connect(
     spec: &WorkerSpec,
     tls_ca: Option<&[u8]>,
     timeout: Duration,
-) -> Result<Client, String> {
-    let (host, port) = split_address(&spec.address).map_err(|e| format!("{e:#}"))?;
+) -> ClusterResult<Client> {
+    let (host, port) =
+        split_address(&spec.address).map_err(|e| ClusterError::Address(format!("{e:#}")))?;
     let scheme = if tls_ca.is_some() { "https" } else { "http" };
     let mut endpoint = Endpoint::from_shared(format!("{scheme}://{host}:{port}"))
-        .map_err(|e| format!("invalid address: {e}"))?
+        .map_err(|e| ClusterError::InvalidAddress(e.to_string()))?
         .connect_timeout(timeout)
         .tcp_nodelay(true)
         .http2_keep_alive_interval(Duration::from_secs(10))
@@ -79,7 +142,7 @@ pub(crate) async fn connect(
                     .ca_certificate(Certificate::from_pem(ca))
                     .domain_name(domain),
             )
-            .map_err(|e| format!("TLS setup failed: {e}"))?;
+            .map_err(|e| ClusterError::Tls(e.to_string()))?;
     }
     let channel = match tokio::time::timeout(timeout, endpoint.connect()).await {
         Ok(Ok(c)) => c,
@@ -93,11 +156,12 @@ pub(crate) async fn connect(
                 }
                 src = s.source();
             }
-            return Err(format!("cannot connect: {msg}"));
+            return Err(ClusterError::Connect(msg));
         }
-        Err(_) => return Err(format!("cannot connect within {} ms", timeout.as_millis())),
+        Err(_) => return Err(ClusterError::ConnectTimeout(timeout.as_millis())),
     };
-    let auth = BearerAuth::new(spec.token.as_deref()).map_err(|e| format!("{e:#}"))?;
+    let auth = BearerAuth::new(spec.token.as_deref())
+        .map_err(|e| ClusterError::Address(format!("{e:#}")))?;
     Ok(
         pb::worker_client::WorkerClient::with_interceptor(channel, auth)
             .max_decoding_message_size(MAX_DECODE),
@@ -121,13 +185,18 @@ pub(crate) fn check_protocol(
     address: &str,
     ours: u32,
     reply: &pb::InfoReply,
-) -> Result<WorkerInfo, String> {
+) -> ClusterResult<WorkerInfo> {
     if reply.protocol_version != ours {
-        return Err(format!(
-            "protocol version mismatch: this master speaks version {ours}, worker {address} (texsyn {}) speaks version {}; run the same texsyn release on both",
-            if reply.version.is_empty() { "?" } else { &reply.version },
-            reply.protocol_version
-        ));
+        return Err(ClusterError::ProtocolMismatch {
+            address: address.to_string(),
+            ours,
+            theirs: reply.protocol_version,
+            version: if reply.version.is_empty() {
+                "?".to_string()
+            } else {
+                reply.version.clone()
+            },
+        });
     }
     Ok(WorkerInfo {
         version: reply.version.clone(),
@@ -144,7 +213,7 @@ pub(crate) async fn calibrate(
     mut client: Client,
     size: CalibrationSize,
     d: Duration,
-) -> Result<f64, String> {
+) -> ClusterResult<f64> {
     let r = within(
         d,
         "Calibrate",
@@ -161,10 +230,7 @@ pub(crate) async fn calibrate(
     .await?
     .into_inner();
     if !(r.pairs_per_second.is_finite() && r.pairs_per_second > 0.0) {
-        return Err(format!(
-            "Calibrate answered an invalid throughput {}",
-            r.pairs_per_second
-        ));
+        return Err(ClusterError::InvalidThroughput(r.pairs_per_second));
     }
     Ok(r.pairs_per_second)
 }
@@ -182,7 +248,7 @@ pub(crate) async fn handshake(
     protocol: u32,
     connect_timeout: Duration,
     call_timeout: Duration,
-) -> Result<Handshake, String> {
+) -> ClusterResult<Handshake> {
     let mut client = connect(&spec, tls_ca.as_deref(), connect_timeout).await?;
     let reply = within(
         call_timeout,
@@ -204,7 +270,7 @@ pub(crate) async fn load_level(
     mut client: Client,
     req: pb::LoadLevelRequest,
     d: Duration,
-) -> Result<pb::LoadLevelReply, String> {
+) -> ClusterResult<pb::LoadLevelReply> {
     Ok(within(d, "LoadLevel", client.load_level(request(req, d)))
         .await?
         .into_inner())
@@ -214,17 +280,13 @@ pub(crate) async fn assign(
     mut client: Client,
     req: pb::AssignRequest,
     d: Duration,
-) -> Result<pb::AssignReply, String> {
+) -> ClusterResult<pb::AssignReply> {
     Ok(within(d, "Assign", client.assign(request(req, d)))
         .await?
         .into_inner())
 }
 
-pub(crate) async fn end_job(
-    mut client: Client,
-    job_id: String,
-    d: Duration,
-) -> Result<u64, String> {
+pub(crate) async fn end_job(mut client: Client, job_id: String, d: Duration) -> ClusterResult<u64> {
     Ok(within(
         d,
         "EndJob",
@@ -241,7 +303,7 @@ pub(crate) struct SearchStream {
     rx: Streaming<pb::SearchResult>,
 }
 
-pub(crate) async fn open_stream(mut client: Client, d: Duration) -> Result<SearchStream, String> {
+pub(crate) async fn open_stream(mut client: Client, d: Duration) -> ClusterResult<SearchStream> {
     let (tx, rx) = mpsc::channel(8);
     let rx = within(
         d,
@@ -265,7 +327,7 @@ pub(crate) struct Part {
 pub(crate) struct PartAnswer {
     /// The stream, for the next batch (None when it failed).
     pub stream: Option<SearchStream>,
-    pub result: Result<Vec<Hit>, String>,
+    pub result: ClusterResult<Vec<Hit>>,
     /// Wall time from sending to the last answer.
     pub wall: f64,
     /// Search time the worker reported.
@@ -278,60 +340,16 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
     let started = Instant::now();
     let mut hits = Vec::new();
     let mut search_seconds = 0.0;
-    let deadline = tokio::time::Instant::from_std(part.deadline);
-    let budget = part.deadline.saturating_duration_since(started);
     let mut failure = None;
     for chunk in part.chunks {
-        let (id, count) = (chunk.batch_id, chunk.count as usize);
-        let sent = tokio::time::timeout_at(deadline, stream.tx.send(chunk)).await;
-        match sent {
-            Ok(Ok(())) => {}
-            Ok(Err(_)) => {
-                failure = Some("closed the search stream".to_string());
-                break;
+        match ask_chunk(&mut stream, chunk, part.deadline, started, &part.range).await {
+            Ok((h, seconds)) => {
+                hits.extend(h);
+                search_seconds += seconds;
             }
-            Err(_) => {
-                failure = Some(format!("missed its deadline of {} ms", budget.as_millis()));
+            Err(e) => {
+                failure = Some(e);
                 break;
-            }
-        }
-        match tokio::time::timeout_at(deadline, stream.rx.message()).await {
-            Err(_) => {
-                failure = Some(format!("missed its deadline of {} ms", budget.as_millis()));
-                break;
-            }
-            Ok(Err(s)) => {
-                failure = Some(format!("search failed: {}", status_text(&s)));
-                break;
-            }
-            Ok(Ok(None)) => {
-                failure = Some("closed the search stream".to_string());
-                break;
-            }
-            Ok(Ok(Some(r))) => {
-                if r.batch_id != id {
-                    failure = Some(format!(
-                        "answered batch {} when batch {id} was asked",
-                        r.batch_id
-                    ));
-                    break;
-                }
-                match best_hits(&r, count) {
-                    Ok(h) => {
-                        if let Err(e) = check_part(&h, count, &part.range) {
-                            failure = Some(e);
-                            break;
-                        }
-                        hits.extend(h);
-                        if r.seconds.is_finite() && r.seconds >= 0.0 {
-                            search_seconds += r.seconds;
-                        }
-                    }
-                    Err(e) => {
-                        failure = Some(format!("{e:#}"));
-                        break;
-                    }
-                }
             }
         }
     }
@@ -350,6 +368,45 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
             search_seconds,
         },
     }
+}
+
+/// Sends one chunk and reads its answer before `deadline`: the checked hits
+/// and the search seconds the worker reported (0 when not a valid time).
+async fn ask_chunk(
+    stream: &mut SearchStream,
+    chunk: pb::SearchBatch,
+    deadline: Instant,
+    started: Instant,
+    range: &Range<u64>,
+) -> ClusterResult<(Vec<Hit>, f64)> {
+    let missed = || ClusterError::Deadline(deadline.saturating_duration_since(started).as_millis());
+    let at = tokio::time::Instant::from_std(deadline);
+    let (id, count) = (chunk.batch_id, chunk.count as usize);
+    match tokio::time::timeout_at(at, stream.tx.send(chunk)).await {
+        Ok(Ok(())) => {}
+        Ok(Err(_)) => return Err(ClusterError::StreamClosed),
+        Err(_) => return Err(missed()),
+    }
+    let r = match tokio::time::timeout_at(at, stream.rx.message()).await {
+        Err(_) => return Err(missed()),
+        Ok(Err(s)) => return Err(ClusterError::Search(status_text(&s))),
+        Ok(Ok(None)) => return Err(ClusterError::StreamClosed),
+        Ok(Ok(Some(r))) => r,
+    };
+    if r.batch_id != id {
+        return Err(ClusterError::WrongBatch {
+            answered: r.batch_id,
+            asked: id,
+        });
+    }
+    let h = best_hits(&r, count).map_err(|e| ClusterError::BadAnswer(format!("{e:#}")))?;
+    check_part(&h, count, range).map_err(ClusterError::BadAnswer)?;
+    let seconds = if r.seconds.is_finite() && r.seconds >= 0.0 {
+        r.seconds
+    } else {
+        0.0
+    };
+    Ok((h, seconds))
 }
 
 /// Runs `f` on `rt` from synchronous code. Inside another runtime's context
@@ -380,7 +437,9 @@ mod tests {
             version: "9.9.9".into(),
             ..Default::default()
         };
-        let e = check_protocol("10.0.0.1:7878", 1, &reply).unwrap_err();
+        let e = check_protocol("10.0.0.1:7878", 1, &reply)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("version 1") && e.contains("version 7"), "{e}");
         assert!(e.contains("10.0.0.1:7878") && e.contains("9.9.9"), "{e}");
         let ok = pb::InfoReply {
@@ -389,5 +448,30 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(check_protocol("a:1", 1, &ok).unwrap().threads, 3);
+    }
+
+    #[test]
+    fn addresses_are_checked() {
+        assert_eq!(
+            split_address("127.0.0.2:7878").unwrap(),
+            ("127.0.0.2".into(), 7878)
+        );
+        assert_eq!(split_address("[::1]:80").unwrap(), ("[::1]".into(), 80));
+        assert_eq!(
+            split_address("https://render-1.lan:443/").unwrap(),
+            ("render-1.lan".into(), 443)
+        );
+        for bad in [
+            "",
+            "host",
+            "host:",
+            "host:0",
+            "host:99999",
+            ":80",
+            "a b:80",
+            "h/x:1",
+        ] {
+            assert!(split_address(bad).is_err(), "{bad}");
+        }
     }
 }

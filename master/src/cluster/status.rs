@@ -1,34 +1,17 @@
-//! `texsyn cluster status`: one Info call per worker, printed as a table.
+//! `texsyn cluster status` (ARCHITECTURE §4.1): one Info call per worker,
+//! printed as a table.
 
-use std::path::PathBuf;
 use std::time::Duration;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use texsyn_proto::v1 as pb;
 use texsyn_proto::PROTOCOL_VERSION;
 
-use super::conn::{connect, within};
-use super::hosts::{parse_worker_list, read_hosts_file, WorkerSpec};
-use texsyn_proto::auth::read_token_file;
-
-#[derive(clap::Args, Debug, Clone)]
-pub struct StatusArgs {
-    /// Hosts file (TOML) with [[worker]] address = "host:port" entries.
-    #[arg(long, value_name = "FILE", required_unless_present = "workers")]
-    pub hosts: Option<PathBuf>,
-    /// Workers host:port,...
-    #[arg(long, value_delimiter = ',', value_name = "HOST:PORT,...")]
-    pub workers: Vec<String>,
-    /// Shared token of the workers.
-    #[arg(long, value_name = "FILE")]
-    pub token_file: Option<PathBuf>,
-    /// Seconds to wait for each worker.
-    #[arg(long, default_value_t = 3.0)]
-    pub timeout: f64,
-}
+use super::conn::{connect, within, WorkerSpec};
+use super::error::ClusterResult;
 
 /// One row of the table: the worker's Info, or why it did not answer.
-pub type StatusRow = (String, std::result::Result<pb::InfoReply, String>);
+pub type StatusRow = (String, ClusterResult<pb::InfoReply>);
 
 /// Asks every worker for its Info.
 pub fn query(workers: &[WorkerSpec], timeout: Duration) -> Result<Vec<StatusRow>> {
@@ -96,23 +79,4 @@ pub fn format_table(rows: &[StatusRow]) -> String {
         }
     }
     out
-}
-
-/// `texsyn cluster status`.
-pub fn run(a: &StatusArgs) -> Result<()> {
-    let token = a.token_file.as_deref().map(read_token_file).transpose()?;
-    let mut workers = parse_worker_list(&a.workers, token.as_deref())?;
-    if let Some(h) = &a.hosts {
-        workers.extend(read_hosts_file(h, token.as_deref())?);
-    }
-    if workers.is_empty() {
-        bail!("no workers: give --hosts FILE or --workers HOST:PORT,...");
-    }
-    let timeout = Duration::from_secs_f64(a.timeout.clamp(0.1, 600.0));
-    let rows = query(&workers, timeout)?;
-    print!("{}", format_table(&rows));
-    if rows.iter().all(|(_, r)| r.is_err()) {
-        bail!("no worker answered");
-    }
-    Ok(())
 }

@@ -1,7 +1,8 @@
 //! A small harness for multi-process tests: real `texsyn-worker` processes on
 //! 127.0.0.x with port 0 (the real port is read from their `listening on ADDR`
 //! line), a shared token in a 0600 file, signals (SIGKILL, SIGSTOP, SIGCONT),
-//! and every process killed when its handle is dropped.
+//! and every process killed when its handle is dropped; and the synthesis the
+//! cluster tests run (sample, configuration, plan, thread pool).
 #![allow(dead_code)]
 
 use std::ffi::OsString;
@@ -9,8 +10,13 @@ use std::net::{Ipv4Addr, SocketAddr};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use texsyn::cluster::local::{new_token, spawn_worker, write_token_file, WorkerProcess};
 use texsyn::cluster::WorkerSpec;
+use texsyn::imaging::{self, ColorImage};
+use texsyn::launch::local::{new_token, spawn_worker, write_token_file, WorkerProcess};
+use texsyn::search::{LocalSearch, Plan, PlannedSearch, SearchBackend, Strategy};
+use texsyn::synth::Silent;
+use texsyn::{synthesize, Config, Mode, Output, SynthMethod};
+use texsyn_engine::Engine;
 
 /// `target/<profile>/`, the parent of this test executable's `deps/`.
 pub fn target_dir() -> PathBuf {
@@ -166,4 +172,57 @@ pub fn texture_path(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../assets/textures")
         .join(name)
+}
+
+/// Pyramid levels of the test synthesis.
+pub const LEVELS: usize = 3;
+
+/// The sample of the test synthesis: `brick_color_96.png`.
+pub fn sample() -> &'static ColorImage {
+    static S: OnceLock<ColorImage> = OnceLock::new();
+    S.get_or_init(|| imaging::load_color(&texture_path("brick_color_96.png")).unwrap())
+}
+
+pub fn config() -> Config {
+    Config {
+        block: 3,
+        neighbourhood: 9,
+        levels: LEVELS,
+        batch: 16,
+        seed: 5,
+        ..Config::default()
+    }
+}
+
+/// A `side`×`side` texture grown from the sample.
+pub fn mode(side: usize) -> Mode {
+    Mode::Synth {
+        width: side,
+        height: side,
+        method: SynthMethod::Grow,
+    }
+}
+
+pub fn pool() -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap()
+}
+
+/// Every level searched with `strategy` (the cluster ones on `cluster`).
+pub fn planned(strategy: Strategy, cluster: Option<Box<dyn SearchBackend>>) -> PlannedSearch {
+    let backend = PlannedSearch::new(
+        Plan::Levels(vec![strategy; LEVELS]),
+        LocalSearch::new(Engine::default()),
+    );
+    match cluster {
+        Some(c) => backend.with_cluster(c),
+        None => backend,
+    }
+}
+
+/// The test synthesis of a `side`×`side` texture on `backend`, on 2 threads.
+pub fn synth(backend: &mut PlannedSearch, side: usize) -> anyhow::Result<Output> {
+    pool().install(|| synthesize(sample(), &mode(side), &config(), backend, &Silent))
 }

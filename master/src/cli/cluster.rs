@@ -1,6 +1,7 @@
-//! The cluster options of the synthesis commands (`--workers`, `--hosts`,
-//! `--local-workers`, ...), turned into validated [`ClusterOptions`] plus the
-//! local worker processes started for the run.
+//! The cluster's command line (ARCHITECTURE §4.2, §4.4): the cluster options
+//! of the synthesis commands (`--workers`, `--hosts`, `--local-workers`, ...),
+//! turned into validated [`ClusterOptions`] plus the worker processes started
+//! for the run, and `texsyn cluster status`.
 
 use std::ffi::OsString;
 use std::path::PathBuf;
@@ -8,12 +9,13 @@ use std::time::Duration;
 
 use anyhow::{bail, ensure, Context, Result};
 use clap::Args;
-
-use super::hosts::{parse_worker_list, read_hosts_file_launch};
-use super::local::{find_worker_binary, LocalWorkers};
-use super::ssh::SshWorkers;
-use super::ClusterOptions;
 use texsyn_proto::auth::read_token_file;
+
+use crate::cluster::{status, ClusterOptions, WorkerSpec};
+use crate::launch::{
+    find_worker_binary, parse_worker_list, read_hosts_file, read_hosts_file_launch, LaunchSpec,
+    LocalWorkers, SshWorkers,
+};
 
 #[derive(Args, Debug, Clone, Default)]
 #[command(next_help_heading = "Search cluster")]
@@ -74,34 +76,10 @@ impl ClusterArgs {
     /// workers. `None` when no worker source is given.
     pub fn setup(&self) -> Result<Option<ClusterSetup>> {
         if !self.any() {
-            for (set, flag) in [
-                (self.require_cluster, "--require-cluster"),
-                (self.master_share, "--master-share"),
-                (self.token_file.is_some(), "--token-file"),
-                (self.tls_ca.is_some(), "--tls-ca"),
-                (self.worker_binary.is_some(), "--worker-binary"),
-                (
-                    self.local_worker_threads.is_some(),
-                    "--local-worker-threads",
-                ),
-            ] {
-                if set {
-                    bail!("{flag} needs workers: add --workers, --hosts or --local-workers");
-                }
-            }
+            self.check_no_cluster_flags()?;
             return Ok(None);
         }
-        ensure!(
-            self.worker_timeout.is_finite() && (0.01..=3600.0).contains(&self.worker_timeout),
-            "--worker-timeout {} must be between 0.01 and 3600 seconds",
-            self.worker_timeout
-        );
-        if self.local_workers > 0 && self.tls_ca.is_some() {
-            bail!("--tls-ca cannot be used with --local-workers: local workers listen on loopback without TLS");
-        }
-        if self.local_workers == 0 && self.local_worker_threads.is_some() {
-            bail!("--local-worker-threads needs --local-workers N");
-        }
+        self.check_flags()?;
         let token = self
             .token_file
             .as_deref()
@@ -127,51 +105,143 @@ impl ClusterArgs {
                 std::fs::read(p).with_context(|| format!("cannot read --tls-ca {}", p.display()))
             })
             .transpose()?;
-        let local = if self.local_workers > 0 {
-            let binary = find_worker_binary(self.worker_binary.as_deref())?;
-            let l = LocalWorkers::spawn(
-                &binary,
-                self.local_workers,
-                self.local_worker_threads,
-                &Vec::<OsString>::new(),
-            )?;
+        let local = self.start_local_workers()?;
+        if let Some(l) = &local {
             workers.extend(l.specs());
-            Some(l)
-        } else {
-            None
-        };
+        }
+        let ssh = launch_over_ssh(&launch)?;
         let mut skipped_hosts = Vec::new();
-        let ssh = if launch.is_empty() {
-            None
-        } else {
-            let s = SshWorkers::launch(&launch)?;
-            for k in &s.skipped {
-                eprintln!("texsyn: host {} skipped: {}", k.ssh, k.reason);
-                skipped_hosts.push((k.ssh.clone(), k.reason.clone()));
-            }
+        if let Some(s) = &ssh {
+            skipped_hosts.extend(s.skipped.iter().map(|k| (k.ssh.clone(), k.reason.clone())));
             workers.extend(s.specs());
-            Some(s)
+        }
+        let options = ClusterOptions {
+            tls_ca,
+            skipped_hosts,
+            ..self.options(workers)?
         };
+        Ok(Some(ClusterSetup {
+            options,
+            local,
+            ssh,
+        }))
+    }
+
+    /// Without a worker source, no other cluster flag may be given.
+    fn check_no_cluster_flags(&self) -> Result<()> {
+        for (set, flag) in [
+            (self.require_cluster, "--require-cluster"),
+            (self.master_share, "--master-share"),
+            (self.token_file.is_some(), "--token-file"),
+            (self.tls_ca.is_some(), "--tls-ca"),
+            (self.worker_binary.is_some(), "--worker-binary"),
+            (
+                self.local_worker_threads.is_some(),
+                "--local-worker-threads",
+            ),
+        ] {
+            if set {
+                bail!("{flag} needs workers: add --workers, --hosts or --local-workers");
+            }
+        }
+        Ok(())
+    }
+
+    /// The flags that do not need any file or process.
+    fn check_flags(&self) -> Result<()> {
+        ensure!(
+            self.worker_timeout.is_finite() && (0.01..=3600.0).contains(&self.worker_timeout),
+            "--worker-timeout {} must be between 0.01 and 3600 seconds",
+            self.worker_timeout
+        );
+        if self.local_workers > 0 && self.tls_ca.is_some() {
+            bail!("--tls-ca cannot be used with --local-workers: local workers listen on loopback without TLS");
+        }
+        if self.local_workers == 0 && self.local_worker_threads.is_some() {
+            bail!("--local-worker-threads needs --local-workers N");
+        }
+        Ok(())
+    }
+
+    /// `--local-workers N`, if given.
+    fn start_local_workers(&self) -> Result<Option<LocalWorkers>> {
+        if self.local_workers == 0 {
+            return Ok(None);
+        }
+        let binary = find_worker_binary(self.worker_binary.as_deref())?;
+        let l = LocalWorkers::spawn(
+            &binary,
+            self.local_workers,
+            self.local_worker_threads,
+            &Vec::<OsString>::new(),
+        )?;
+        Ok(Some(l))
+    }
+
+    /// The cluster options for `workers` (each listed once), without TLS.
+    pub fn options(&self, workers: Vec<WorkerSpec>) -> Result<ClusterOptions> {
         let mut seen = std::collections::HashSet::new();
         for w in &workers {
             if !seen.insert(w.address.as_str()) {
                 bail!("worker {} is listed twice", w.address);
             }
         }
-        Ok(Some(ClusterSetup {
-            options: ClusterOptions {
-                workers,
-                skipped_hosts,
-                tls_ca,
-                require_cluster: self.require_cluster,
-                master_share: self.master_share,
-                deadline_floor: Duration::from_secs_f64(self.worker_timeout),
-                ..ClusterOptions::default()
-            },
-            local,
-            ssh,
-        }))
+        Ok(ClusterOptions {
+            workers,
+            require_cluster: self.require_cluster,
+            master_share: self.master_share,
+            deadline_floor: Duration::from_secs_f64(self.worker_timeout),
+            ..ClusterOptions::default()
+        })
     }
+}
+
+/// `--launch`: the workers started over ssh (None when there are no hosts to
+/// launch on); the hosts skipped are named on stderr.
+fn launch_over_ssh(launch: &[LaunchSpec]) -> Result<Option<SshWorkers>> {
+    if launch.is_empty() {
+        return Ok(None);
+    }
+    let s = SshWorkers::launch(launch)?;
+    for k in &s.skipped {
+        eprintln!("texsyn: host {} skipped: {}", k.ssh, k.reason);
+    }
+    Ok(Some(s))
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct StatusArgs {
+    /// Hosts file (TOML) with [[worker]] address = "host:port" entries.
+    #[arg(long, value_name = "FILE", required_unless_present = "workers")]
+    pub hosts: Option<PathBuf>,
+    /// Workers host:port,...
+    #[arg(long, value_delimiter = ',', value_name = "HOST:PORT,...")]
+    pub workers: Vec<String>,
+    /// Shared token of the workers.
+    #[arg(long, value_name = "FILE")]
+    pub token_file: Option<PathBuf>,
+    /// Seconds to wait for each worker.
+    #[arg(long, default_value_t = 3.0)]
+    pub timeout: f64,
+}
+
+/// `texsyn cluster status`.
+pub fn run_status(a: &StatusArgs) -> Result<()> {
+    let token = a.token_file.as_deref().map(read_token_file).transpose()?;
+    let mut workers = parse_worker_list(&a.workers, token.as_deref())?;
+    if let Some(h) = &a.hosts {
+        workers.extend(read_hosts_file(h, token.as_deref())?);
+    }
+    if workers.is_empty() {
+        bail!("no workers: give --hosts FILE or --workers HOST:PORT,...");
+    }
+    let timeout = Duration::from_secs_f64(a.timeout.clamp(0.1, 600.0));
+    let rows = status::query(&workers, timeout)?;
+    print!("{}", status::format_table(&rows));
+    if rows.iter().all(|(_, r)| r.is_err()) {
+        bail!("no worker answered");
+    }
+    Ok(())
 }
 
 #[cfg(test)]

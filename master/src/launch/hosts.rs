@@ -1,5 +1,5 @@
 //! Where the workers are: `--workers host:port,...`, a hosts file (TOML) and the
-//! token files that go with them (ARCHITECTURE §4 "Discovery").
+//! token files that go with them (ARCHITECTURE §4.2, §4.4).
 //!
 //! ```toml
 //! # hosts.toml
@@ -16,62 +16,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, ensure, Context, Result};
 use texsyn_proto::auth::read_token_file;
 
-/// One worker the master should use.
-#[derive(Clone, PartialEq, Eq)]
-pub struct WorkerSpec {
-    /// `host:port` (or `http(s)://host:port`) as the user wrote it.
-    pub address: String,
-    /// Shared token sent on every call, if the worker requires one.
-    pub token: Option<String>,
-}
-
-impl std::fmt::Debug for WorkerSpec {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("WorkerSpec")
-            .field("address", &self.address)
-            .field("token", &self.token.as_ref().map(|_| "<redacted>"))
-            .finish()
-    }
-}
-
-impl WorkerSpec {
-    pub fn new(address: impl Into<String>, token: Option<String>) -> Self {
-        Self {
-            address: address.into(),
-            token,
-        }
-    }
-}
-
-/// Splits `host:port` (also `[v6]:port`, optionally prefixed with `http://` or
-/// `https://`) into host and port, checking both.
-pub fn split_address(address: &str) -> Result<(String, u16)> {
-    let a = address.trim();
-    let a = a
-        .strip_prefix("http://")
-        .or_else(|| a.strip_prefix("https://"))
-        .unwrap_or(a)
-        .trim_end_matches('/');
-    let (host, port) = a.rsplit_once(':').with_context(|| {
-        format!("worker address '{address}' is not host:port, e.g. 192.168.1.20:7878")
-    })?;
-    let port: u16 = port
-        .parse()
-        .with_context(|| format!("port '{port}' of worker address '{address}' is not 1..=65535"))?;
-    ensure!(
-        port != 0,
-        "worker address '{address}' has port 0; give the port the worker printed"
-    );
-    let bare = host.trim_start_matches('[').trim_end_matches(']');
-    ensure!(
-        !bare.is_empty()
-            && bare
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | ':' | '_')),
-        "host '{host}' of worker address '{address}' is not a host name or IP address"
-    );
-    Ok((host.to_string(), port))
-}
+use crate::cluster::{split_address, WorkerSpec};
 
 #[derive(serde::Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -204,21 +149,16 @@ fn entry_spec(
     base: &Path,
     default_token: Option<&str>,
 ) -> Result<WorkerSpec> {
-    {
-        {
-            split_address(&e.address)
-                .with_context(|| format!("in the hosts file {}", path.display()))?;
-            if !e.other.is_empty() {
-                let keys: Vec<&str> = e.other.keys().map(String::as_str).collect();
-                tracing::debug!(address = %e.address, ?keys, "hosts file keys not used for connecting");
-            }
-            let token = match &e.token_file {
-                Some(f) => Some(read_token_file(&base.join(f))?),
-                None => default_token.map(str::to_string),
-            };
-            Ok(WorkerSpec::new(e.address, token))
-        }
+    split_address(&e.address).with_context(|| format!("in the hosts file {}", path.display()))?;
+    if !e.other.is_empty() {
+        let keys: Vec<&str> = e.other.keys().map(String::as_str).collect();
+        tracing::debug!(address = %e.address, ?keys, "hosts file keys not used for connecting");
     }
+    let token = match &e.token_file {
+        Some(f) => Some(read_token_file(&base.join(f))?),
+        None => default_token.map(str::to_string),
+    };
+    Ok(WorkerSpec::new(e.address, token))
 }
 
 /// Parses a `--workers a:1,b:2` list (empty entries are ignored).
@@ -238,31 +178,6 @@ pub fn parse_worker_list(list: &[String], token: Option<&str>) -> Result<Vec<Wor
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn addresses_are_checked() {
-        assert_eq!(
-            split_address("127.0.0.2:7878").unwrap(),
-            ("127.0.0.2".into(), 7878)
-        );
-        assert_eq!(split_address("[::1]:80").unwrap(), ("[::1]".into(), 80));
-        assert_eq!(
-            split_address("https://render-1.lan:443/").unwrap(),
-            ("render-1.lan".into(), 443)
-        );
-        for bad in [
-            "",
-            "host",
-            "host:",
-            "host:0",
-            "host:99999",
-            ":80",
-            "a b:80",
-            "h/x:1",
-        ] {
-            assert!(split_address(bad).is_err(), "{bad}");
-        }
-    }
 
     #[test]
     fn worker_list_and_hosts_file() {

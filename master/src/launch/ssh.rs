@@ -11,7 +11,7 @@
 //! closes; on Linux the ssh client also gets SIGTERM), the remote worker sees
 //! EOF on stdin and exits.
 
-use std::io::{BufRead, BufReader, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -19,8 +19,8 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use texsyn_proto::wire::parse_listening_line;
 
-use super::hosts::{LaunchSpec, WorkerSpec};
-use super::local::{new_token, START_TIMEOUT};
+use super::local::new_token;
+use super::{end_with_parent, first_line, LaunchSpec, WorkerSpec, START_TIMEOUT};
 
 /// How long the resource check of one host may take.
 pub const CHECK_TIMEOUT: Duration = Duration::from_secs(20);
@@ -223,17 +223,7 @@ fn launch_one(spec: &LaunchSpec, report: HostReport, token: &str, log: &Path) ->
     cmd.stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::from(log_file));
-    #[cfg(target_os = "linux")]
-    {
-        use std::os::unix::process::CommandExt;
-        // SAFETY: only async-signal-safe prctl(2) runs between fork and exec.
-        unsafe {
-            cmd.pre_exec(|| {
-                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM as libc::c_ulong);
-                Ok(())
-            });
-        }
-    }
+    end_with_parent(&mut cmd);
     let mut child = cmd.spawn().context("cannot run ssh")?;
     let mut stdin = child.stdin.take().context("ssh stdin")?;
     let stdout = child.stdout.take().context("ssh stdout")?;
@@ -249,18 +239,9 @@ fn launch_one(spec: &LaunchSpec, report: HostReport, token: &str, log: &Path) ->
         bail!("cannot send the token to {}: {e}", spec.ssh);
     }
     worker.stdin = Some(stdin);
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::Builder::new()
-        .name("texsyn-ssh-stdout".into())
-        .spawn(move || {
-            let mut lines = BufReader::new(stdout).lines();
-            let _ = tx.send(lines.next());
-            for _ in lines {}
-        })
-        .context("cannot start a thread")?;
-    let line = match rx.recv_timeout(START_TIMEOUT) {
-        Ok(Some(Ok(line))) => line,
-        _ => {
+    let line = match first_line(stdout, "texsyn-ssh-stdout")? {
+        Some(line) => line,
+        None => {
             worker.stop();
             let log_text = std::fs::read_to_string(log).unwrap_or_default();
             bail!(

@@ -1,26 +1,22 @@
-//! A local multi-process cluster (`--local-workers N`, ARCHITECTURE §4 "Discovery"):
+//! A local multi-process cluster (`--local-workers N`, ARCHITECTURE §4.2):
 //! `texsyn-worker` processes on 127.0.0.2, 127.0.0.3, ... with port 0, a fresh
 //! random token in a 0600 file, their ports read from the `listening on ADDR`
 //! line. They are killed when [`LocalWorkers`] is dropped, on success and on
 //! error alike.
 
 use std::ffi::OsString;
-use std::io::{BufRead, BufReader, Read, Seek};
+use std::io::{Read, Seek};
 use std::net::{Ipv4Addr, SocketAddr};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use texsyn_proto::wire::parse_listening_line;
 
-use super::hosts::WorkerSpec;
+use super::{end_with_parent, first_line, WorkerSpec, START_TIMEOUT};
 
 /// Name of the worker executable.
 pub const WORKER_BINARY: &str = "texsyn-worker";
-
-/// How long a started worker gets to print its listening line.
-pub const START_TIMEOUT: Duration = Duration::from_secs(20);
 
 /// Finds `texsyn-worker`: `explicit` if given, else next to the current
 /// executable (the same target directory, also from `target/*/deps/`), else on PATH.
@@ -141,43 +137,19 @@ pub fn spawn_worker(
     if std::env::var_os("RUST_LOG").is_none() {
         cmd.env("RUST_LOG", "warn");
     }
-    #[cfg(target_os = "linux")]
-    {
-        use std::os::unix::process::CommandExt;
-        // The worker gets SIGTERM when the thread that started it ends, so a
-        // master killed with SIGKILL leaves no worker behind. (Start workers
-        // from a thread that outlives them: the main thread, or a test's.)
-        // SAFETY: only async-signal-safe prctl(2) runs between fork and exec.
-        unsafe {
-            cmd.pre_exec(|| {
-                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM as libc::c_ulong);
-                Ok(())
-            });
-        }
-    }
+    end_with_parent(&mut cmd);
     let mut child = cmd
         .spawn()
         .with_context(|| format!("cannot start {}", binary.display()))?;
     let stdout = child.stdout.take().context("worker stdout")?;
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::Builder::new()
-        .name("texsyn-worker-stdout".into())
-        .spawn(move || {
-            let mut lines = BufReader::new(stdout).lines();
-            let first = lines.next();
-            let _ = tx.send(first);
-            // Keep draining so the worker never blocks on a full pipe.
-            for _ in lines {}
-        })
-        .context("cannot start a thread")?;
     let mut process = WorkerProcess {
         address: SocketAddr::from(([0, 0, 0, 0], 0)),
         child,
         log: log.to_path_buf(),
     };
-    let line = match rx.recv_timeout(START_TIMEOUT) {
-        Ok(Some(Ok(line))) => line,
-        Ok(_) | Err(_) => {
+    let line = match first_line(stdout, "texsyn-worker-stdout")? {
+        Some(line) => line,
+        None => {
             process.kill();
             bail!(
                 "the worker {} on {ip} did not print its listening line within {:?}: {}",

@@ -1,0 +1,303 @@
+//! One batch on the cluster (ARCHITECTURE §4.1, §4.3): the queries go to every
+//! worker with a range (in chunks under its message limit, on its long-lived
+//! `Search` stream, with a deadline from its calibration) while the master
+//! searches its own share; the answers are checked and merged
+//! ([`texsyn_engine::merge_answers`]: minimum distance, ties to the lowest
+//! global index). When any worker fails, nothing of the round is used: the
+//! failed workers are dropped, the level is cut anew and the whole batch is
+//! asked again.
+
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use texsyn_engine::{Hit, QueryBatch};
+use texsyn_proto::v1 as pb;
+use tracing::Instrument;
+
+use super::conn::{self, block_on, PartAnswer};
+use super::error::ClusterError;
+use super::policy;
+use super::report::EventKind;
+use super::ClusterSearch;
+
+/// One round of a batch: the merged answers, or the workers that failed (slot, reason).
+type Round = std::result::Result<Vec<Hit>, Vec<(usize, ClusterError)>>;
+
+/// A batch as sent: its id and the queries without padding.
+struct Outgoing<'a> {
+    batch: &'a QueryBatch,
+    id: u64,
+    values: &'a [u8],
+    masks: &'a [u8],
+}
+
+/// Queries per message that stay under a worker's message limit.
+fn queries_per_chunk(max_message: u64, dims: usize) -> usize {
+    let room = max_message.saturating_sub(4096) as usize;
+    let by_request = room / (2 * dims + 8).max(1);
+    let by_answer = room / 24;
+    by_request
+        .min(by_answer)
+        .clamp(1, texsyn_proto::wire::MAX_QUERIES)
+}
+
+/// Awaits every future, concurrently, in order.
+pub(super) async fn join_all<F>(futures: Vec<F>) -> Vec<F::Output>
+where
+    F: std::future::Future + Send + 'static,
+    F::Output: Send + 'static,
+{
+    let handles: Vec<_> = futures.into_iter().map(tokio::spawn).collect();
+    let mut out = Vec::with_capacity(handles.len());
+    for h in handles {
+        match h.await {
+            Ok(v) => out.push(v),
+            Err(e) => std::panic::resume_unwind(e.into_panic()),
+        }
+    }
+    out
+}
+
+impl ClusterSearch {
+    /// Searches one batch until a round completes; each failed round drops at
+    /// least one worker and cuts the level anew (ARCHITECTURE §4.3).
+    pub(super) fn search_batch(&mut self, batch: &QueryBatch, id: u64) -> Result<Vec<Hit>> {
+        let (values, masks) = batch.unpadded();
+        let out = Outgoing {
+            batch,
+            id,
+            values: &values,
+            masks: &masks,
+        };
+        let mut rounds = 0;
+        loop {
+            rounds += 1;
+            let failures = match self.try_batch(&out)? {
+                Ok(hits) => return Ok(hits),
+                Err(failures) => failures,
+            };
+            let mut names = Vec::new();
+            for (i, reason) in failures {
+                names.push(self.slots[i].spec.address.clone());
+                self.drop_worker(i, reason);
+            }
+            // Each round drops at least one worker, so this ends.
+            debug_assert!(rounds <= self.slots.len() + 1);
+            self.repartition(
+                EventKind::Repartition,
+                format!("dropped {}; batch {id} asked again", names.join(", ")),
+            )?;
+        }
+    }
+
+    /// Opens the search stream of every slot in `participants` that has none
+    /// (streams are kept across batches and levels); the failures.
+    fn open_streams(&mut self, participants: &[usize]) -> Vec<(usize, ClusterError)> {
+        let need: Vec<usize> = participants
+            .iter()
+            .copied()
+            .filter(|&i| self.slots[i].stream.is_none())
+            .collect();
+        if need.is_empty() {
+            return Vec::new();
+        }
+        let d = self.opts.call_timeout;
+        let jobs: Vec<_> = need
+            .iter()
+            .map(|&i| conn::open_stream(self.slots[i].client.clone().expect("active"), d))
+            .collect();
+        let opened = block_on(self.rt(), join_all(jobs));
+        let mut failures = Vec::new();
+        for (i, r) in need.into_iter().zip(opened) {
+            match r {
+                Ok(s) => self.slots[i].stream = Some(s),
+                Err(e) => failures.push((i, e)),
+            }
+        }
+        failures
+    }
+
+    /// Slot `i`'s part of the batch: the chunks under its message limit, its
+    /// range and its deadline from `now`.
+    fn part_for(&self, i: usize, out: &Outgoing, expected: f64, now: Instant) -> conn::Part {
+        let s = &self.slots[i];
+        let (n, dims) = (out.batch.len(), out.batch.layout().dims());
+        let lv = self.level.as_ref().map_or(0, |l| l.data.level);
+        let deadline = now
+            + policy::batch_deadline(
+                expected,
+                self.opts.deadline_factor,
+                self.opts.deadline_floor,
+            );
+        let per = queries_per_chunk(s.info.as_ref().map_or(4 << 20, |x| x.max_message), dims);
+        let chunks: Vec<pb::SearchBatch> = (0..n)
+            .step_by(per)
+            .enumerate()
+            .map(|(k, q0)| {
+                let q1 = (q0 + per).min(n);
+                pb::SearchBatch {
+                    job_id: self.opts.job_id.clone(),
+                    level: lv as u32,
+                    batch_id: out.id * 1024 + k as u64,
+                    top_k: 1,
+                    count: (q1 - q0) as u32,
+                    values: out.values[q0 * dims..q1 * dims].to_vec(),
+                    masks: out.masks[q0 * dims..q1 * dims].to_vec(),
+                    epoch: self.epoch,
+                }
+            })
+            .collect();
+        conn::Part {
+            chunks,
+            range: s.range.clone(),
+            deadline,
+        }
+    }
+
+    /// Searches the master's own share, if it has one.
+    fn search_master_share(&mut self, batch: &QueryBatch) -> Result<Option<Vec<Hit>>> {
+        let (Some(space), Some(level)) = (&self.master.space, &self.level) else {
+            return Ok(None);
+        };
+        let t = Instant::now();
+        let hits =
+            self.engine
+                .search_best(space, self.master.range.clone(), batch, &level.data.params)?;
+        self.master.stats.search_seconds += t.elapsed().as_secs_f64();
+        self.master.stats.queries += batch.len() as u64;
+        self.master.stats.batches += 1;
+        Ok(Some(hits))
+    }
+
+    /// Searches one batch on the current partition. Err(failures) when any
+    /// worker failed: nothing of this round is used.
+    fn try_batch(&mut self, out: &Outgoing) -> Result<Round> {
+        let level = self.level.as_ref().context("search before load_level")?;
+        let cost = policy::pair_cost(level.layout().stride(), self.opts.calibration.dims);
+        let n = out.batch.len();
+        let participants = self.slots_where(|s| s.active() && s.len() > 0);
+        let failures = self.open_streams(&participants);
+        if !failures.is_empty() {
+            return Ok(Err(failures));
+        }
+
+        // Send every worker its part; the tasks run while the master searches its own share.
+        let now = Instant::now();
+        let mut handles = Vec::with_capacity(participants.len());
+        let mut expected = Vec::with_capacity(participants.len());
+        for &i in &participants {
+            let s = &self.slots[i];
+            let exp = policy::expected_seconds(s.len(), n, cost, s.rate);
+            let part = self.part_for(i, out, exp, now);
+            let span = tracing::debug_span!("worker", address = %s.spec.address, batch = out.id);
+            let stream = self.slots[i].stream.take().expect("opened above");
+            handles.push(
+                self.rt()
+                    .spawn(conn::run_part(stream, part).instrument(span)),
+            );
+            expected.push(exp);
+        }
+        let mut parts: Vec<Vec<Hit>> = Vec::new();
+        parts.extend(self.search_master_share(out.batch)?);
+        let answers = block_on(self.rt(), async move {
+            let mut out = Vec::with_capacity(handles.len());
+            for h in handles {
+                out.push(h.await);
+            }
+            out
+        });
+        let mut failures = Vec::new();
+        let mut slow: Option<String> = None;
+        for ((&i, exp), a) in participants.iter().zip(expected).zip(answers) {
+            match a {
+                Ok(a) => match self.take_answer(i, a, n, cost, exp, &mut slow) {
+                    Ok(hits) => parts.push(hits),
+                    Err(e) => failures.push((i, e)),
+                },
+                Err(e) => failures.push((i, ClusterError::Task(e.to_string()))),
+            }
+        }
+        if !failures.is_empty() {
+            return Ok(Err(failures));
+        }
+        let refs: Vec<&[Hit]> = parts.iter().map(Vec::as_slice).collect();
+        let merged = texsyn_engine::merge_answers(n, &refs);
+        self.after_batch(n, slow)?;
+        Ok(Ok(merged))
+    }
+
+    /// Takes slot `i`'s answer to a batch of `n` queries expected to take
+    /// `exp` seconds: its stream back, its statistics and strikes; `slow` gets
+    /// the reason for a recalibration when it struck out (the first one only).
+    fn take_answer(
+        &mut self,
+        i: usize,
+        a: PartAnswer,
+        n: usize,
+        cost: f64,
+        exp: f64,
+        slow: &mut Option<String>,
+    ) -> std::result::Result<Vec<Hit>, ClusterError> {
+        let s = &mut self.slots[i];
+        s.stream = a.stream;
+        let hits = a.result?;
+        s.level_pairs += s.len() as f64 * n as f64 * cost;
+        s.level_seconds += a.search_seconds;
+        s.stats.queries += n as u64;
+        s.stats.batches += 1;
+        s.stats.search_seconds += a.search_seconds;
+        s.stats.round_trip_seconds += a.wall;
+        // Busy: much slower than its calibration predicts.
+        let is_slow = policy::is_slow(a.wall, exp, self.opts.slow_factor);
+        s.strikes = policy::strikes_after(s.strikes, is_slow);
+        if is_slow && policy::strikes_out(s.strikes, self.opts.slow_strikes) && slow.is_none() {
+            *slow = Some(format!(
+                "worker {} answered {} batches in a row slower than {}× its calibration (last {:.1} ms, expected {:.1} ms)",
+                s.spec.address,
+                s.strikes,
+                self.opts.slow_factor,
+                a.wall * 1e3,
+                exp * 1e3
+            ));
+        }
+        Ok(hits)
+    }
+
+    /// After a complete batch: count it, then recalibrate (a worker struck
+    /// out and the cooldown is over) or consider a rebalance. The answer is
+    /// complete already; a new partition serves the next batch.
+    fn after_batch(&mut self, n: usize, slow: Option<String>) -> Result<()> {
+        self.batches_since_recalibration += 1;
+        if let Some(l) = self.level.as_mut() {
+            l.queries += n as u64;
+        }
+        match slow {
+            Some(reason) => {
+                if policy::cooldown_over(
+                    self.batches_since_recalibration,
+                    self.opts.recalibrate_cooldown,
+                ) {
+                    self.recalibrate(reason)?;
+                }
+                Ok(())
+            }
+            None => self.maybe_rebalance(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chunks_fit_the_message_limit() {
+        assert_eq!(
+            queries_per_chunk(64 << 20, 106),
+            texsyn_proto::wire::MAX_QUERIES.min((64 << 20) / 220)
+        );
+        let per = queries_per_chunk(64 << 10, 106);
+        assert!(per * (2 * 106 + 8) + 4096 <= 64 << 10);
+        assert_eq!(queries_per_chunk(0, 106), 1);
+    }
+}
