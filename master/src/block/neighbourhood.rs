@@ -1,84 +1,16 @@
-//! Canvas levels and search neighbourhoods (Stahlhut §4–§6, ARCHITECTURE §3.1–§3.4).
+//! Search neighbourhoods (Stahlhut §5–§6, ARCHITECTURE §3.2–§3.3).
 //!
 //! A search vector is the block's N×N neighbourhood on the canvas (masked to
 //! its defined pixels, Stahlhut §5) followed by the M×M window around the
 //! parent position in the finished coarser canvas level (§6). With `wrap` the
-//! canvas is a torus (§4, tileability).
+//! canvas is a torus (§4, tileability). The reference side of full-colour
+//! search ([`colour_vectors`]) is laid out the same way.
 
-/// One pyramid level of the output: luminance, which pixels are defined, and
-/// for each defined pixel the sample coordinate it came from (the copy map).
-#[derive(Debug, Clone)]
-pub struct Canvas {
-    pub width: usize,
-    pub height: usize,
-    pub lum: Vec<u8>,
-    pub defined: Vec<bool>,
-    /// Source coordinate in this level's sample, valid where `defined`.
-    pub copy: Vec<[u32; 2]>,
-    pub wrap: bool,
-    /// Cb and Cr of each defined pixel, for full-colour search (ARCHITECTURE §3.7).
-    pub chroma: Option<[Vec<u8>; 2]>,
-}
+use anyhow::{bail, Context, Result};
 
-impl Canvas {
-    pub fn new(width: usize, height: usize, wrap: bool) -> Self {
-        let n = width * height;
-        Self {
-            width,
-            height,
-            lum: vec![0; n],
-            defined: vec![false; n],
-            copy: vec![[0, 0]; n],
-            wrap,
-            chroma: None,
-        }
-    }
-
-    /// Adds Cb/Cr planes so queries compare colour too.
-    pub fn with_chroma(mut self) -> Self {
-        let n = self.width * self.height;
-        self.chroma = Some([vec![128; n], vec![128; n]]);
-        self
-    }
-
-    /// The planes a query reads: luminance, then Cb and Cr when searching in colour.
-    fn planes(&self) -> Vec<&[u8]> {
-        let mut v: Vec<&[u8]> = vec![&self.lum];
-        if let Some([cb, cr]) = &self.chroma {
-            v.push(cb);
-            v.push(cr);
-        }
-        v
-    }
-
-    /// Index of (x, y), wrapped on a torus or `None` outside a plain canvas.
-    #[inline]
-    pub fn index(&self, x: isize, y: isize) -> Option<usize> {
-        let (w, h) = (self.width as isize, self.height as isize);
-        if self.wrap {
-            Some((y.rem_euclid(h) * w + x.rem_euclid(w)) as usize)
-        } else if x >= 0 && y >= 0 && x < w && y < h {
-            Some((y * w + x) as usize)
-        } else {
-            None
-        }
-    }
-
-    /// Undefined pixels inside the N×N window around (cx, cy); pixels outside a
-    /// plain canvas never become defined and are not counted.
-    pub fn undefined_in_window(&self, cx: isize, cy: isize, n: usize) -> u32 {
-        let r = (n / 2) as isize;
-        let mut count = 0;
-        for y in cy - r..=cy + r {
-            for x in cx - r..=cx + r {
-                if let Some(i) = self.index(x, y) {
-                    count += u32::from(!self.defined[i]);
-                }
-            }
-        }
-        count
-    }
-}
+use super::canvas::Canvas;
+use super::plan::LevelSample;
+use crate::imaging::Gray;
 
 /// Which hi-part pixels a query may use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -106,52 +38,102 @@ pub fn query(
     mask: &mut [u8],
 ) {
     let r = (n / 2) as isize;
-    let mut k = 0;
-    for plane in canvas.planes() {
-        for dy in -r..=r {
-            for dx in -r..=r {
-                let allowed = match shape {
-                    Shape::Symmetric => true,
-                    Shape::Causal { block } => {
-                        let h = (block / 2) as isize;
-                        dy < -h || (dy <= h && dx < -h)
-                    }
-                };
-                match canvas.index(cx + dx, cy + dy) {
-                    Some(i) if allowed && canvas.defined[i] => {
-                        values[k] = plane[i];
-                        mask[k] = 1;
-                    }
-                    _ => {
-                        values[k] = 0;
-                        mask[k] = 0;
-                    }
-                }
-                k += 1;
-            }
+    let mut out = VectorWriter { values, mask, k: 0 };
+    let allowed = |dx: isize, dy: isize| match shape {
+        Shape::Symmetric => true,
+        Shape::Causal { block } => {
+            let h = (block / 2) as isize;
+            dy < -h || (dy <= h && dx < -h)
         }
+    };
+    for plane in canvas.planes() {
+        out.window(canvas, plane, (cx, cy), r, allowed);
     }
     if let Some(p) = parent {
         let pr = (m / 2) as isize;
         let (px, py) = (cx.div_euclid(2), cy.div_euclid(2));
         for plane in p.planes() {
-            for dy in -pr..=pr {
-                for dx in -pr..=pr {
-                    match p.index(px + dx, py + dy) {
-                        Some(i) if p.defined[i] => {
-                            values[k] = plane[i];
-                            mask[k] = 1;
-                        }
-                        _ => {
-                            values[k] = 0;
-                            mask[k] = 0;
-                        }
+            out.window(p, plane, (px, py), pr, |_, _| true);
+        }
+    }
+}
+
+/// Writes search-vector components in order.
+struct VectorWriter<'v> {
+    values: &'v mut [u8],
+    mask: &'v mut [u8],
+    k: usize,
+}
+
+impl VectorWriter<'_> {
+    /// The (2r+1)² window of `plane` (a plane of `canvas`) around `centre`, row
+    /// by row: a pixel is compared (mask 1) where it is inside, defined and
+    /// `allowed(dx, dy)`; otherwise value and mask are 0.
+    #[inline]
+    fn window(
+        &mut self,
+        canvas: &Canvas,
+        plane: &[u8],
+        centre: (isize, isize),
+        r: isize,
+        allowed: impl Fn(isize, isize) -> bool,
+    ) {
+        let (cx, cy) = centre;
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let k = self.k;
+                match canvas.index(cx + dx, cy + dy) {
+                    Some(i) if allowed(dx, dy) && canvas.defined[i] => {
+                        self.values[k] = plane[i];
+                        self.mask[k] = 1;
                     }
-                    k += 1;
+                    _ => {
+                        self.values[k] = 0;
+                        self.mask[k] = 0;
+                    }
                 }
+                self.k += 1;
             }
         }
     }
+}
+
+/// Unpadded full-colour reference vectors: per position the Y, Cb and Cr N×N
+/// windows, then (below the coarsest level) the parent's Y, Cb and Cr M×M windows.
+pub(super) fn colour_vectors(
+    ls: &LevelSample,
+    positions: &[[u32; 2]],
+    n: usize,
+    m: usize,
+) -> Result<Vec<u8>> {
+    let chroma = ls
+        .chroma
+        .as_ref()
+        .context("colour search without chroma planes")?;
+    let fine = [&ls.lum, &chroma[0], &chroma[1]];
+    let parent: Vec<&Gray> = match (&ls.parent, &ls.parent_chroma, m) {
+        (_, _, 0) => Vec::new(),
+        (Some((p, _)), Some(pc), _) => vec![p, &pc[0], &pc[1]],
+        _ => bail!("colour search without parent chroma planes"),
+    };
+    let (r, pr) = (n / 2, m / 2);
+    let dims = 3 * (n * n + if parent.is_empty() { 0 } else { m * m });
+    let mut out = Vec::with_capacity(positions.len() * dims);
+    for p in positions {
+        let (x, y) = (p[0] as usize, p[1] as usize);
+        for plane in fine {
+            for yy in y - r..=y + r {
+                out.extend_from_slice(&plane.row(yy)[x - r..=x + r]);
+            }
+        }
+        for plane in &parent {
+            let (px, py) = (x / 2, y / 2);
+            for yy in py - pr..=py + pr {
+                out.extend_from_slice(&plane.row(yy)[px - pr..=px + pr]);
+            }
+        }
+    }
+    Ok(out)
 }
 
 #[cfg(test)]
