@@ -17,10 +17,11 @@ use std::time::Instant;
 use anyhow::{ensure, Context, Result};
 use clap::Args;
 use rand::{Rng, SeedableRng};
+use texsyn::block::pyramid;
 use texsyn::cluster::{ClusterOptions, ClusterSearch};
+use texsyn::imaging;
 use texsyn::launch::{find_worker_binary, LocalWorkers};
 use texsyn::search::{LevelData, LocalSearch, SearchBackend};
-use texsyn::{imaging, pyramid};
 use texsyn_engine::{
     Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample, VectorSpace, Weights,
 };

@@ -3,8 +3,8 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
+use texsyn::block::Silent;
 use texsyn::search::LocalSearch;
-use texsyn::synth::Silent;
 use texsyn::{synthesize, Output};
 use texsyn_engine::Engine;
 

@@ -4,9 +4,9 @@
 use std::path::Path;
 
 use anyhow::Result;
+use texsyn::block::Silent;
 use texsyn::imaging::{self, ColorImage};
 use texsyn::search::{LocalSearch, Plan, PlannedSearch};
-use texsyn::synth::Silent;
 use texsyn::{synthesize, Config, Mode, Position, SynthMethod};
 use texsyn_engine::Engine;
 

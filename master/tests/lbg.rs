@@ -7,10 +7,10 @@ mod common;
 
 use anyhow::Result;
 use common::{assets, s, texsyn};
+use texsyn::block::Silent;
 use texsyn::imaging::{self, ColorImage};
-use texsyn::lbg::LbgSearch;
+use texsyn::search::lbg::LbgSearch;
 use texsyn::search::{LevelData, LocalSearch, Plan, PlannedSearch, SearchBackend};
-use texsyn::synth::Silent;
 use texsyn::{synthesize, Config, Mode, Output, SynthMethod};
 use texsyn_engine::lbg::default_seeds;
 use texsyn_engine::{Engine, Hit, QueryBatch};

@@ -4,10 +4,10 @@
 
 use std::path::PathBuf;
 
+use texsyn::block::Silent;
 use texsyn::imaging::{self, ColorImage};
 use texsyn::search::{LocalSearch, Plan, PlannedSearch};
-use texsyn::synth::Silent;
-use texsyn::{synthesize, Config, Mode, Output, Position, SynthMethod};
+use texsyn::{synthesize, ycbcr, Config, Mode, Output, Position, SynthMethod};
 use texsyn_engine::Engine;
 
 fn texture(name: &str) -> ColorImage {
@@ -301,7 +301,7 @@ fn colour_search_tells_apart_colours_of_equal_luminance() {
     // Left half green, right half red, both of luminance 95; a hole in the red half.
     let (w, h) = (96usize, 64usize);
     let (green, red) = ([50u8, 127, 50], [200u8, 50, 50]);
-    assert_eq!(imaging::luma(50, 127, 50), imaging::luma(200, 50, 50));
+    assert_eq!(ycbcr::luma(50, 127, 50), ycbcr::luma(200, 50, 50));
     let mut rgb = Vec::with_capacity(w * h * 3);
     for _y in 0..h {
         for x in 0..w {

@@ -11,10 +11,10 @@ use std::time::Instant;
 use anyhow::Result;
 use clap::Args;
 use rayon::ThreadPool;
+use texsyn::block::Silent;
 use texsyn::imaging::load_color;
-use texsyn::lbg::LbgSearch;
+use texsyn::search::lbg::LbgSearch;
 use texsyn::search::{LocalSearch, Plan, PlannedSearch};
-use texsyn::synth::Silent;
 use texsyn::{synthesize, Output};
 use texsyn_engine::{Codebook, Engine, Hit, LbgConfig, QueryBatch, VectorSpace};
 
@@ -92,7 +92,7 @@ impl Bench<'_> {
             threshold: self.args.lbg_threshold,
             max_iterations: self.args.lbg_max_iterations,
             sample_per_seed: self.args.lbg_sample_per_seed,
-            seed: texsyn::lbg::level_seed(seed, level),
+            seed: texsyn::search::lbg::level_seed(seed, level),
             ..LbgConfig::default()
         }
     }

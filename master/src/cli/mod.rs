@@ -9,10 +9,10 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use texsyn_engine::{Engine, Metric, Weights};
 
+use crate::block::{self, Config, Mode, Position, Progress, SynthMethod};
 use crate::imaging::{self, ColorImage};
-use crate::lbg::LbgSearch;
+use crate::search::lbg::LbgSearch;
 use crate::search::{LocalSearch, Plan, PlannedSearch};
-use crate::synth::{self, Config, Mode, Position, Progress, SynthMethod};
 pub use cluster::{run_status, ClusterArgs, ClusterSetup, StatusArgs};
 
 mod cluster;
@@ -122,7 +122,7 @@ pub struct Common {
     #[arg(long, default_value = "exact")]
     pub search: String,
     /// LBG: partitions searched per query (the P nearest seeds; 1..=seeds of the level).
-    #[arg(long, default_value_t = crate::lbg::DEFAULT_PROBES)]
+    #[arg(long, default_value_t = crate::search::lbg::DEFAULT_PROBES)]
     pub lbg_probes: usize,
     /// LBG: stop training when the relative change of the total seed displacement
     /// falls below this (0 < T < 1).
@@ -204,9 +204,9 @@ pub fn parse_size(s: &str) -> Result<(usize, usize)> {
         .with_context(|| format!("height '{h}' in --size '{s}' is not a number"))?;
     ensure!(w > 0 && h > 0, "size {w}x{h} is empty; give both sides ≥ 1");
     ensure!(
-        w.saturating_mul(h) <= synth::MAX_CANVAS_PIXELS && w.max(h) <= imaging::MAX_SIDE,
+        w.saturating_mul(h) <= block::MAX_CANVAS_PIXELS && w.max(h) <= imaging::MAX_SIDE,
         "size {w}x{h} is too large: the limit is {} pixels and {} per side",
-        synth::MAX_CANVAS_PIXELS,
+        block::MAX_CANVAS_PIXELS,
         imaging::MAX_SIDE
     );
     Ok((w, h))
@@ -316,10 +316,10 @@ fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
     b.build().context("cannot start the search threads")
 }
 
-fn write_outputs(common: &Common, out: &synth::Output) -> Result<()> {
+fn write_outputs(common: &Common, out: &block::Output) -> Result<()> {
     imaging::save_color(&common.output, &out.image)?;
     if let Some(p) = &common.copy_map {
-        let img = crate::colour::copy_map_image(
+        let img = crate::block::colour::copy_map_image(
             &out.copy_map,
             out.image.width,
             out.image.height,
@@ -390,10 +390,10 @@ fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) 
     }
     if !matches!(mode, Mode::Fill { .. }) || cfg.levels != 0 {
         // (Automatic levels of `fill` depend on the holes; checked per level then.)
-        backend.check_levels(synth::resolve_levels(sample.width, sample.height, &cfg))?;
+        backend.check_levels(block::resolve_levels(sample.width, sample.height, &cfg))?;
     }
     let t = Instant::now();
-    let out = pool.install(|| synth::synthesize(sample, &mode, &cfg, &mut backend, &bars))?;
+    let out = pool.install(|| block::synthesize(sample, &mode, &cfg, &mut backend, &bars))?;
     tracing::info!(seconds = t.elapsed().as_secs_f64(), search = %out.report.search, "synthesis done");
     write_outputs(common, &out)?;
     if !common.quiet {

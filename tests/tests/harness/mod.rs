@@ -10,11 +10,11 @@ use std::net::{Ipv4Addr, SocketAddr};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use texsyn::block::Silent;
 use texsyn::cluster::WorkerSpec;
 use texsyn::imaging::{self, ColorImage};
 use texsyn::launch::local::{new_token, spawn_worker, write_token_file, WorkerProcess};
 use texsyn::search::{LocalSearch, Plan, PlannedSearch, SearchBackend, Strategy};
-use texsyn::synth::Silent;
 use texsyn::{synthesize, Config, Mode, Output, SynthMethod};
 use texsyn_engine::Engine;
 

@@ -1,4 +1,4 @@
-//! Gaussian pyramid (Stahlhut §4, after Burt–Adelson; ARCHITECTURE §3, §3.1).
+//! Gaussian pyramid (Stahlhut §6, after Burt–Adelson; ARCHITECTURE §3.1, §3.8).
 //!
 //! 5-tap binomial filter [1 4 6 4 1]/16, separable, then decimation by 2
 //! keeping the even pixels: a `w`×`h` level has a `(w+1)/2`×`(h+1)/2` parent.
@@ -30,6 +30,15 @@ fn tap_index(c: usize, k: usize, n: usize, wrap: bool) -> usize {
 #[inline]
 pub fn coarse_size(w: usize, h: usize) -> (usize, usize) {
     (w.div_ceil(2), h.div_ceil(2))
+}
+
+/// Size of level `level` (0 = the `w`×`h` input).
+pub fn level_size(w: usize, h: usize, level: usize) -> (usize, usize) {
+    let (mut w, mut h) = (w, h);
+    for _ in 0..level {
+        (w, h) = coarse_size(w, h);
+    }
+    (w, h)
 }
 
 /// One pyramid step: binomial blur and decimation by 2.

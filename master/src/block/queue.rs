@@ -1,4 +1,4 @@
-//! The block list L{B_u} of Stahlhut §4 as a bucket queue.
+//! The block list L{B_u} of Stahlhut §4 as a bucket queue (ARCHITECTURE §3.4).
 //!
 //! Blocks with undefined pixels are keyed by the number of undefined pixels in
 //! their neighbourhood ("hash table with p_undef as key"); ties go to the lower

@@ -1,4 +1,4 @@
-//! Colour from the copy map (Stahlhut §7; ARCHITECTURE §3.7, §3.10).
+//! Colour from the copy map (Stahlhut §7, §9; ARCHITECTURE §3.7, §3.10).
 //!
 //! The search runs on luminance; at the finest level every output pixel takes
 //! the colour of the sample pixel its copy-map entry points at. Optionally a
@@ -8,6 +8,7 @@
 use anyhow::bail;
 
 use crate::imaging::ColorImage;
+use crate::ycbcr::{from_ycc, to_ycc};
 
 /// Rebuilds colour: output pixel `i` = `sample` at `copy_map[i]` (`[x, y]`).
 /// Fails if the map does not have `width * height` entries or points outside
@@ -65,49 +66,6 @@ fn is_seam(copy_map: &[[u32; 2]], w: usize, h: usize, x: usize, y: usize) -> boo
             let [tx, ty] = copy_map[ny as usize * w + nx as usize];
             (i64::from(tx), i64::from(ty)) != (sx + dx, sy + dy)
         })
-}
-
-// BT.601 full-range YCbCr in 16-bit fixed point (JPEG/JFIF coefficients).
-const ONE: i64 = 1 << 16;
-
-/// Y·2¹⁶, Cb·2¹⁶, Cr·2¹⁶ (chroma centred on 0).
-#[inline]
-fn to_ycc(p: &[u8]) -> (i64, i64, i64) {
-    let (r, g, b) = (i64::from(p[0]), i64::from(p[1]), i64::from(p[2]));
-    (
-        19595 * r + 38470 * g + 7471 * b,
-        -11059 * r - 21709 * g + 32768 * b,
-        32768 * r - 27439 * g - 5329 * b,
-    )
-}
-
-/// Back to RGB keeping Y: if the chroma would leave the RGB cube it is scaled
-/// towards grey (which keeps Y) until it fits, then the result is rounded and clamped.
-fn from_ycc(y: i64, cb: i64, cr: i64) -> [u8; 3] {
-    // Channel = (base + d) / 2³², with d linear in (cb, cr).
-    let base = i128::from(y) * i128::from(ONE);
-    let deltas = |cb: i128, cr: i128| [91881 * cr, -22554 * cb - 46802 * cr, 116130 * cb];
-    let (mut cb, mut cr) = (i128::from(cb), i128::from(cr));
-    let hi = 255i128 << 32;
-    // Largest t = num/den in [0, 1] keeping every channel inside [0, 255].
-    let (mut num, mut den) = (1i128, 1i128);
-    for d in deltas(cb, cr) {
-        let (n, dd) = if d > 0 && base + d > hi {
-            (hi - base, d)
-        } else if d < 0 && base + d < 0 {
-            (base, -d)
-        } else {
-            continue;
-        };
-        if n * den < num * dd {
-            (num, den) = (n, dd);
-        }
-    }
-    if num != den {
-        cb = cb * num / den;
-        cr = cr * num / den;
-    }
-    deltas(cb, cr).map(|d| ((base + d + (1i128 << 31)) >> 32).clamp(0, 255) as u8)
 }
 
 /// Light chroma blur at patch borders (ARCHITECTURE §3.7): pixels within `radius`
@@ -241,7 +199,7 @@ pub fn copy_map_image(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::imaging::luminance;
+    use crate::ycbcr::luminance;
 
     fn sample(w: usize, h: usize, seed: u32) -> ColorImage {
         let mut s = seed.wrapping_mul(2_654_435_761) | 1;
@@ -291,33 +249,6 @@ mod tests {
         assert!(rebuild(&s, &[[0, 9]], 1, 1).is_err());
         let e = rebuild(&s, &[[0, 0]; 3], 2, 2).unwrap_err().to_string();
         assert!(e.contains("3 entries"), "{e}");
-    }
-
-    #[test]
-    fn ycc_roundtrip_is_exact_for_8bit() {
-        for r in (0..=255).step_by(5) {
-            for g in (0..=255).step_by(3) {
-                for b in (0..=255).step_by(7) {
-                    let p = [r as u8, g as u8, b as u8];
-                    let (y, cb, cr) = to_ycc(&p);
-                    assert_eq!(from_ycc(y, cb, cr), p);
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn out_of_gamut_chroma_keeps_luma() {
-        for &(p, cb, cr) in &[
-            ([250u8, 250, 250], 100 * ONE, 100 * ONE),
-            ([5, 5, 5], -120 * ONE, 127 * ONE),
-            ([128, 20, 230], 127 * ONE, -128 * ONE),
-        ] {
-            let (y, _, _) = to_ycc(&p);
-            let q = from_ycc(y, cb, cr);
-            let l = |p: [u8; 3]| crate::imaging::luma(p[0], p[1], p[2]) as i32;
-            assert!((l(p) - l(q)).abs() <= 1, "{p:?} -> {q:?}");
-        }
     }
 
     #[test]

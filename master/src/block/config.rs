@@ -1,0 +1,141 @@
+//! What to make and with which parameters (Stahlhut §4–§6, §9, §10.3;
+//! ARCHITECTURE §3.1, §3.6, §3.9).
+
+use anyhow::{ensure, Result};
+use texsyn_engine::{Geometry, Metric, Weights};
+
+use crate::imaging::{self, ColorImage};
+
+/// How full synthesis grows a new texture.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SynthMethod {
+    /// Grow outwards from a seeded sample patch placed at the canvas centre.
+    Grow,
+    /// The paper's scan-line full synthesis: causal L-shaped neighbourhood,
+    /// canvas initialised with noise drawn from the sample (ARCHITECTURE §3.6).
+    Scanline,
+}
+
+/// Where the sample goes in an `extend` canvas.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub enum Position {
+    Center,
+    At(usize, usize),
+}
+
+/// What to make (ARCHITECTURE §3.1).
+#[derive(Debug, Clone)]
+pub enum Mode {
+    /// Constrained synthesis of the holes (true = fill) of the sample itself.
+    Fill { holes: Vec<bool> },
+    /// A larger canvas with the sample placed in it.
+    Extend {
+        width: usize,
+        height: usize,
+        position: Position,
+    },
+    /// A new texture of any size.
+    Synth {
+        width: usize,
+        height: usize,
+        method: SynthMethod,
+    },
+}
+
+/// Synthesis parameters; [`Config::default`] gives good results without tuning.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Block side B (odd, 1..=11).
+    pub block: usize,
+    /// Neighbourhood side N (odd, > B).
+    pub neighbourhood: usize,
+    /// Parent window side M; `None` = the smallest odd window covering N.
+    pub parent_window: Option<usize>,
+    /// Pyramid levels; 0 = automatic.
+    pub levels: usize,
+    pub weights: Weights,
+    pub metric: Metric,
+    pub tileable: bool,
+    pub seed: u64,
+    /// Deterministic batch size K (1 = the paper's strict order).
+    pub batch: usize,
+    /// Chroma blur radius at patch borders (0 = off).
+    pub chroma_blur: usize,
+    /// Per-level samples for texture mixing (§10.3): level → image used as that
+    /// level's sample at its own resolution.
+    pub level_samples: Vec<(usize, ColorImage)>,
+    /// Full-colour search: compare Y, Cb and Cr neighbourhoods (three times the
+    /// vector size) for textures whose structure and colour disagree (§9).
+    pub colour_search: bool,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            block: 5,
+            neighbourhood: 11,
+            parent_window: None,
+            levels: 0,
+            weights: Weights { hi: 1, lo: 2 },
+            metric: Metric::L1,
+            tileable: false,
+            seed: 1,
+            batch: 16,
+            chroma_blur: 0,
+            level_samples: Vec::new(),
+            colour_search: false,
+        }
+    }
+}
+
+/// Largest canvas accepted (pixels); larger requests are refused up front.
+pub const MAX_CANVAS_PIXELS: usize = imaging::MAX_PIXELS;
+
+impl Config {
+    /// Checks the parameters against each other; messages name both sides.
+    pub fn validate(&self) -> Result<()> {
+        let b = self.block;
+        let n = self.neighbourhood;
+        ensure!(
+            b % 2 == 1 && (1..=11).contains(&b),
+            "block size {b} must be odd and in 1..=11 (e.g. --block 3)"
+        );
+        ensure!(
+            n % 2 == 1 && (3..=31).contains(&n),
+            "neighbourhood {n} must be odd and in 3..=31 (e.g. --neighbourhood 9)"
+        );
+        ensure!(
+            n > b,
+            "neighbourhood {n} must be larger than the block size {b}"
+        );
+        if let Some(m) = self.parent_window {
+            ensure!(
+                m % 2 == 1 && (1..=31).contains(&m),
+                "parent window {m} must be odd and in 1..=31"
+            );
+        }
+        ensure!(
+            self.levels <= 10,
+            "{} levels is too many; use at most 10",
+            self.levels
+        );
+        ensure!(
+            (1..=4096).contains(&self.batch),
+            "batch {} must be in 1..=4096 (1 = the paper's strict order)",
+            self.batch
+        );
+        Weights::new(self.weights.hi, self.weights.lo)?;
+        ensure!(
+            self.chroma_blur <= 8,
+            "chroma blur radius {} is too large; use 0..=8",
+            self.chroma_blur
+        );
+        Ok(())
+    }
+
+    pub(super) fn parent_window(&self) -> usize {
+        self.parent_window
+            .unwrap_or_else(|| Geometry::parent_window_for(self.neighbourhood))
+    }
+}

@@ -1,0 +1,132 @@
+//! Stahlhut's multi-scale block method (Stahlhut §4–§9; ARCHITECTURE §3).
+//!
+//! Levels are processed coarsest first. On each level the canvas starts with
+//! the pixels known there (the placed sample, the unmasked photo, the seed
+//! patch or, for full synthesis, noise), the block list is keyed by undefined
+//! neighbourhood pixels, and blocks are filled by copying the best-matching
+//! reference block. Finer levels compare a second, low-resolution part taken
+//! from the finished coarser level. Colour is rebuilt from the copy map.
+//!
+//! [`synthesize`] runs three steps: `plan` (checks, levels, pyramids, the known
+//! part of the canvas), `level` once per level (with `fill`, the block loop)
+//! and `finish` (colour and report). The other modules are the method's parts:
+//! `config` (what to make), `canvas`, `queue`, `neighbourhood`, `pyramid` and
+//! `colour`.
+
+use std::time::Instant;
+
+use anyhow::Result;
+use texsyn_engine::Metric;
+
+use crate::imaging::{ColorImage, Gray};
+use crate::search::SearchBackend;
+
+pub mod canvas;
+pub mod colour;
+mod config;
+mod fill;
+mod finish;
+mod level;
+pub mod neighbourhood;
+mod plan;
+pub mod pyramid;
+pub mod queue;
+
+pub use config::{Config, Mode, Position, SynthMethod, MAX_CANVAS_PIXELS};
+pub use plan::resolve_levels;
+
+/// Receives progress; the CLI draws a bar per level.
+pub trait Progress: Sync {
+    fn level_start(&self, _level: usize, _levels: usize, _blocks: u64) {}
+    fn advance(&self, _blocks: u64) {}
+    fn level_end(&self, _level: usize) {}
+}
+
+/// No progress output.
+pub struct Silent;
+impl Progress for Silent {}
+
+/// Figures of one level for the run report.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct LevelReport {
+    pub level: usize,
+    pub canvas: [usize; 2],
+    pub sample: [usize; 2],
+    pub reference_vectors: usize,
+    pub queries: u64,
+    pub batches: u64,
+    pub build_seconds: f64,
+    pub search_seconds: f64,
+    pub total_seconds: f64,
+}
+
+/// The machine-readable run report.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Report {
+    pub mode: String,
+    pub canvas: [usize; 2],
+    pub sample: [usize; 2],
+    pub block: usize,
+    pub neighbourhood: usize,
+    pub parent_window: usize,
+    pub levels: usize,
+    pub weights: [u32; 2],
+    pub metric: Metric,
+    pub tileable: bool,
+    pub seed: u64,
+    pub batch: usize,
+    pub search: String,
+    pub per_level: Vec<LevelReport>,
+    pub synthesis_seconds: f64,
+    /// What the search backend reports (plan used, workers, LBG codebooks).
+    pub search_stats: serde_json::Value,
+}
+
+/// Everything a run produces.
+pub struct Output {
+    pub image: ColorImage,
+    pub luminance: Gray,
+    /// Per output pixel, its source coordinate in the finest sample.
+    pub copy_map: Vec<[u32; 2]>,
+    pub sample_size: [usize; 2],
+    /// Finished luminance per level, finest first.
+    pub levels: Vec<Gray>,
+    pub report: Report,
+}
+
+/// Runs the synthesis with `backend` doing the searches.
+pub fn synthesize(
+    sample: &ColorImage,
+    mode: &Mode,
+    cfg: &Config,
+    backend: &mut dyn SearchBackend,
+    progress: &dyn Progress,
+) -> Result<Output> {
+    cfg.validate()?;
+    let started = Instant::now();
+    let mut plan = plan::Plan::new(sample, mode, cfg)?;
+    let mut per_level = Vec::new();
+    let mut finished: Vec<canvas::Canvas> = Vec::new(); // coarsest first
+    let mut finest_sample_lum = None;
+    for l in (0..plan.levels).rev() {
+        let parent = if l == plan.levels - 1 {
+            None
+        } else {
+            finished.last()
+        };
+        let done = level::run_level(&mut plan, l, parent, backend, progress)?;
+        per_level.push(done.report);
+        if l == 0 {
+            finest_sample_lum = Some(done.sample_lum);
+        }
+        finished.push(done.canvas);
+    }
+    finish::finish(
+        &plan,
+        &finished,
+        finest_sample_lum,
+        per_level,
+        started,
+        backend,
+    )
+}

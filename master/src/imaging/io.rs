@@ -1,0 +1,256 @@
+//! Loading and saving images through the `image` crate (ARCHITECTURE §3.1,
+//! §3.10): format from the content on load, from the extension on save.
+
+use std::fs::File;
+use std::io::{self, BufReader, Write};
+use std::path::Path;
+
+use image::{DynamicImage, ExtendedColorType, ImageDecoder, ImageError, ImageFormat};
+
+use super::atomic::{check_writable_any, write_atomic};
+use super::{
+    check_size_impl, one_line, ColorImage, Gray, ImageIoError, JPEG_QUALITY, MAX_DECODE_ALLOC,
+};
+use crate::ycbcr::luma;
+
+fn read_error(path: &Path, e: io::Error) -> ImageIoError {
+    match e.kind() {
+        io::ErrorKind::NotFound => ImageIoError::NotFound(path.to_path_buf()),
+        io::ErrorKind::PermissionDenied => ImageIoError::Unreadable {
+            path: path.to_path_buf(),
+            reason: "permission denied; check the file's permissions".into(),
+        },
+        _ => ImageIoError::Unreadable {
+            path: path.to_path_buf(),
+            reason: one_line(&e),
+        },
+    }
+}
+
+fn decode_error(path: &Path, e: ImageError) -> ImageIoError {
+    let path = path.to_path_buf();
+    match e {
+        ImageError::Unsupported(u) => ImageIoError::Unsupported {
+            path,
+            reason: one_line(&u),
+        },
+        ImageError::Limits(l) => ImageIoError::Unsupported {
+            path,
+            reason: format!("{}: it needs too much memory", one_line(&l)),
+        },
+        ImageError::IoError(io) if io.kind() != io::ErrorKind::UnexpectedEof => {
+            ImageIoError::Unreadable {
+                path,
+                reason: one_line(&io),
+            }
+        }
+        other => ImageIoError::Corrupt {
+            path,
+            reason: one_line(&other),
+        },
+    }
+}
+
+/// Opens, identifies by content, size-checks and decodes an image file.
+fn decode(path: &Path, what: &str) -> Result<DynamicImage, ImageIoError> {
+    let file = File::open(path).map_err(|e| read_error(path, e))?;
+    let meta = file.metadata().map_err(|e| read_error(path, e))?;
+    if meta.is_dir() {
+        return Err(ImageIoError::IsDirectory(path.to_path_buf()));
+    }
+    let mut reader = image::ImageReader::new(BufReader::new(file))
+        .with_guessed_format()
+        .map_err(|e| read_error(path, e))?;
+    if reader.format().is_none() {
+        return Err(ImageIoError::NotAnImage(path.to_path_buf()));
+    }
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(MAX_DECODE_ALLOC);
+    reader.limits(limits);
+    let mut decoder = reader.into_decoder().map_err(|e| decode_error(path, e))?;
+    let (w, h) = decoder.dimensions();
+    check_size_impl(
+        w as usize,
+        h as usize,
+        &format!("{what} {}", path.display()),
+    )?;
+    let orientation = decoder.orientation().map_err(|e| decode_error(path, e))?;
+    let mut img = DynamicImage::from_decoder(decoder).map_err(|e| decode_error(path, e))?;
+    img.apply_orientation(orientation);
+    Ok(img)
+}
+
+/// Loads a colour image (PNG, JPEG, TIFF, BMP, WebP; format from the content).
+/// 16-bit samples are rounded to 8 bit, grey becomes RGB, alpha is ignored.
+pub fn load_color(path: &Path) -> anyhow::Result<ColorImage> {
+    let img = decode(path, "image")?;
+    let (width, height) = (img.width() as usize, img.height() as usize);
+    let rgb = match img {
+        DynamicImage::ImageRgb8(buf) => buf.into_raw(),
+        other => other.to_rgb8().into_raw(),
+    };
+    Ok(ColorImage { width, height, rgb })
+}
+
+/// Loads a hole mask of exactly `width`×`height` (ARCHITECTURE §3.1): true = hole
+/// (luminance >= 128). Alpha composites over black, so transparent = not a hole.
+pub fn load_mask(path: &Path, width: usize, height: usize) -> anyhow::Result<Vec<bool>> {
+    let img = decode(path, "mask")?;
+    let (mw, mh) = (img.width() as usize, img.height() as usize);
+    if (mw, mh) != (width, height) {
+        return Err(ImageIoError::MaskSize {
+            path: path.to_path_buf(),
+            mask_width: mw,
+            mask_height: mh,
+            width,
+            height,
+        }
+        .into());
+    }
+    let rgba = img.to_rgba8();
+    Ok(rgba
+        .pixels()
+        .map(|p| {
+            let [r, g, b, a] = p.0;
+            let l = luma(r, g, b) as u32;
+            (l * a as u32 + 127) / 255 >= 128
+        })
+        .collect())
+}
+
+/// Output formats, chosen by extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum OutFormat {
+    Png,
+    Jpeg,
+    Tiff,
+    Bmp,
+    WebP,
+}
+
+fn output_format(path: &Path) -> Result<OutFormat, ImageIoError> {
+    let unknown = |reason: String| ImageIoError::UnknownExtension {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let ext = path
+        .extension()
+        .ok_or_else(|| unknown("the file name has no extension".into()))?;
+    let lower = ext.to_string_lossy().to_ascii_lowercase();
+    Ok(match lower.as_str() {
+        "png" => OutFormat::Png,
+        "jpg" | "jpeg" => OutFormat::Jpeg,
+        "tif" | "tiff" => OutFormat::Tiff,
+        "bmp" => OutFormat::Bmp,
+        "webp" => OutFormat::WebP,
+        _ => {
+            return Err(unknown(format!(
+                "unknown extension \".{}\"",
+                ext.to_string_lossy()
+            )))
+        }
+    })
+}
+
+fn encode<W: Write + io::Seek>(
+    w: &mut W,
+    buf: &[u8],
+    width: usize,
+    height: usize,
+    color: ExtendedColorType,
+    fmt: OutFormat,
+) -> Result<(), ImageError> {
+    use image::ImageEncoder;
+    let (w32, h32) = (width as u32, height as u32);
+    match fmt {
+        OutFormat::Jpeg => image::codecs::jpeg::JpegEncoder::new_with_quality(w, JPEG_QUALITY)
+            .write_image(buf, w32, h32, color),
+        OutFormat::WebP => {
+            image::codecs::webp::WebPEncoder::new_lossless(w).write_image(buf, w32, h32, color)
+        }
+        OutFormat::Png => {
+            image::write_buffer_with_format(w, buf, w32, h32, color, ImageFormat::Png)
+        }
+        OutFormat::Tiff => {
+            image::write_buffer_with_format(w, buf, w32, h32, color, ImageFormat::Tiff)
+        }
+        OutFormat::Bmp => {
+            image::write_buffer_with_format(w, buf, w32, h32, color, ImageFormat::Bmp)
+        }
+    }
+}
+
+/// Validates a buffer before it reaches an encoder (encoders panic on a wrong length).
+fn check_buffer(
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: usize,
+    len: usize,
+) -> Result<(), ImageIoError> {
+    let write = |reason: String| ImageIoError::Write {
+        path: path.to_path_buf(),
+        reason,
+    };
+    if width == 0 || height == 0 {
+        return Err(write(format!(
+            "the image is empty ({width}x{height} pixels)"
+        )));
+    }
+    if width > u32::MAX as usize || height > u32::MAX as usize {
+        return Err(write(format!(
+            "the image is too large ({width}x{height} pixels)"
+        )));
+    }
+    if width
+        .checked_mul(height)
+        .and_then(|n| n.checked_mul(channels))
+        != Some(len)
+    {
+        return Err(write(format!(
+            "internal error: pixel buffer of {len} bytes does not match {width}x{height}x{channels}"
+        )));
+    }
+    Ok(())
+}
+
+/// Saves a colour image; format from the extension; atomic (temp file + rename).
+pub fn save_color(path: &Path, img: &ColorImage) -> anyhow::Result<()> {
+    let fmt = output_format(path)?;
+    check_buffer(path, img.width, img.height, 3, img.rgb.len())?;
+    write_atomic(path, |w| {
+        encode(
+            w,
+            &img.rgb,
+            img.width,
+            img.height,
+            ExtendedColorType::Rgb8,
+            fmt,
+        )
+        .map_err(|e| one_line(&e))
+    })?;
+    Ok(())
+}
+
+/// Saves a grey image; format from the extension; atomic (temp file + rename).
+pub fn save_gray(path: &Path, g: &Gray) -> anyhow::Result<()> {
+    let fmt = output_format(path)?;
+    check_buffer(path, g.width, g.height, 1, g.data.len())?;
+    write_atomic(path, |w| {
+        encode(w, &g.data, g.width, g.height, ExtendedColorType::L8, fmt).map_err(|e| one_line(&e))
+    })?;
+    Ok(())
+}
+
+/// Writes arbitrary bytes (e.g. a JSON run report) atomically, like the image savers.
+pub fn save_bytes(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    write_atomic(path, |w| w.write_all(bytes).map_err(|e| one_line(&e)))?;
+    Ok(())
+}
+
+/// Checks, before a long run, that `path` has a supported extension, is not a
+/// directory, and that its directory exists and accepts a new file.
+pub fn check_writable(path: &Path) -> anyhow::Result<()> {
+    output_format(path)?;
+    check_writable_any(path)
+}

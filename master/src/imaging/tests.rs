@@ -1,0 +1,356 @@
+//! Tests of image loading, saving and atomic writes.
+
+use std::fs::{self, File};
+use std::io::Write;
+use std::path::Path;
+
+use super::atomic::write_atomic;
+use super::*;
+use image::{ImageBuffer, Luma, LumaA, Rgb, Rgba};
+
+fn pattern(w: usize, h: usize) -> ColorImage {
+    let mut img = ColorImage::new(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            img.set(
+                x,
+                y,
+                [
+                    (x * 37 + y) as u8,
+                    (y * 53 + 7 * x) as u8,
+                    (x * y + 11) as u8,
+                ],
+            );
+        }
+    }
+    img
+}
+
+fn err_text(r: anyhow::Result<impl std::fmt::Debug>) -> String {
+    let e = r.expect_err("expected an error");
+    let s = e.to_string();
+    assert!(!s.contains('\n'), "error must be one line: {s}");
+    s
+}
+
+fn no_temp_files(dir: &Path) {
+    let names: Vec<_> = fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".tmp-"))
+        .collect();
+    assert!(names.is_empty(), "temp files left: {names:?}");
+}
+
+#[test]
+fn roundtrip_lossless_formats() {
+    let dir = tempfile::tempdir().unwrap();
+    let img = pattern(13, 7);
+    for ext in ["png", "tif", "tiff", "bmp", "webp", "PNG"] {
+        let p = dir.path().join(format!("out.{ext}"));
+        save_color(&p, &img).unwrap();
+        assert_eq!(load_color(&p).unwrap(), img, "{ext}");
+    }
+    no_temp_files(dir.path());
+}
+
+#[test]
+fn roundtrip_jpeg_is_close() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut img = ColorImage::new(16, 16);
+    for y in 0..16 {
+        for x in 0..16 {
+            img.set(x, y, [100 + x as u8, 120, 140 + y as u8]);
+        }
+    }
+    for ext in ["jpg", "jpeg"] {
+        let p = dir.path().join(format!("out.{ext}"));
+        save_color(&p, &img).unwrap();
+        let back = load_color(&p).unwrap();
+        assert_eq!((back.width, back.height), (16, 16));
+        for (a, b) in img.rgb.iter().zip(&back.rgb) {
+            assert!((*a as i32 - *b as i32).abs() <= 8, "{a} vs {b}");
+        }
+    }
+}
+
+#[test]
+fn gray_roundtrip_and_gray_loads_as_rgb() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = Gray::from_vec(5, 3, (0..15).map(|i| (i * 17) as u8).collect());
+    for ext in ["png", "tif", "bmp", "webp"] {
+        let p = dir.path().join(format!("g.{ext}"));
+        save_gray(&p, &g).unwrap();
+        let c = load_color(&p).unwrap();
+        for (i, v) in g.data.iter().enumerate() {
+            assert_eq!(&c.rgb[i * 3..i * 3 + 3], &[*v; 3], "{ext}");
+        }
+        assert_eq!(luminance(&c), g, "{ext}");
+    }
+}
+
+#[test]
+fn sixteen_bit_png_is_rounded() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("deep.png");
+    let vals: [u16; 4] = [0, 65535, 32896, 128]; // 0, 255, 128, round(0.498) = 0
+    let buf = ImageBuffer::<Rgb<u16>, _>::from_fn(4, 1, |x, _| {
+        let v = vals[x as usize];
+        Rgb([v, v, v])
+    });
+    buf.save(&p).unwrap();
+    let img = load_color(&p).unwrap();
+    let r: Vec<u8> = img.rgb.chunks(3).map(|c| c[0]).collect();
+    assert_eq!(r, vec![0, 255, 128, 0]);
+    // 16-bit grey too.
+    let p2 = dir.path().join("deep_gray.png");
+    ImageBuffer::<Luma<u16>, _>::from_fn(2, 1, |x, _| Luma([[257u16, 514][x as usize]]))
+        .save(&p2)
+        .unwrap();
+    assert_eq!(load_color(&p2).unwrap().rgb, vec![1, 1, 1, 2, 2, 2]);
+}
+
+#[test]
+fn rgba_ignores_alpha() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("a.png");
+    ImageBuffer::<Rgba<u8>, _>::from_fn(2, 1, |x, _| {
+        Rgba([10, 20, 30, if x == 0 { 0 } else { 255 }])
+    })
+    .save(&p)
+    .unwrap();
+    assert_eq!(load_color(&p).unwrap().rgb, vec![10, 20, 30, 10, 20, 30]);
+}
+
+#[test]
+fn format_is_guessed_from_content() {
+    let dir = tempfile::tempdir().unwrap();
+    let img = pattern(4, 4);
+    let png = dir.path().join("x.png");
+    save_color(&png, &img).unwrap();
+    let odd = dir.path().join("really_png.bmp");
+    fs::copy(&png, &odd).unwrap();
+    assert_eq!(load_color(&odd).unwrap(), img);
+    let none = dir.path().join("noext");
+    fs::copy(&png, &none).unwrap();
+    assert_eq!(load_color(&none).unwrap(), img);
+}
+
+#[test]
+fn load_errors_are_clear() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.png");
+    let s = err_text(load_color(&missing));
+    assert!(
+        s.starts_with("no such file:") && s.contains("missing.png"),
+        "{s}"
+    );
+
+    let text = dir.path().join("notes.png");
+    fs::write(&text, "this is not an image\n").unwrap();
+    let s = err_text(load_color(&text));
+    assert!(s.contains("not an image") && s.contains("notes.png"), "{s}");
+
+    let empty = dir.path().join("empty.png");
+    fs::write(&empty, "").unwrap();
+    let s = err_text(load_color(&empty));
+    assert!(s.contains("not an image"), "{s}");
+
+    let s = err_text(load_color(dir.path()));
+    assert!(s.contains("is a directory"), "{s}");
+
+    // Truncated PNG: valid signature, missing data.
+    let good = dir.path().join("good.png");
+    save_color(&good, &pattern(32, 32)).unwrap();
+    let bytes = fs::read(&good).unwrap();
+    let trunc = dir.path().join("trunc.png");
+    fs::write(&trunc, &bytes[..bytes.len() / 2]).unwrap();
+    let s = err_text(load_color(&trunc));
+    assert!(s.contains("trunc.png"), "{s}");
+
+    // A GIF is recognised but not compiled in.
+    let gif = dir.path().join("a.gif");
+    fs::write(&gif, b"GIF89a\x01\x00\x01\x00\x00\x00\x00;").unwrap();
+    let s = err_text(load_color(&gif));
+    assert!(s.contains("a.gif"), "{s}");
+}
+
+#[test]
+fn too_large_is_rejected_before_decoding() {
+    let dir = tempfile::tempdir().unwrap();
+    // A valid PNG header claiming 40000x1: rejected from the header alone.
+    let p = dir.path().join("wide.png");
+    ImageBuffer::<Luma<u8>, _>::new(40000, 1).save(&p).unwrap();
+    let s = err_text(load_color(&p));
+    assert!(s.contains("40000x1") && s.contains("32768"), "{s}");
+}
+
+#[test]
+fn check_size_limits() {
+    assert!(check_size(1, 1, "canvas").is_ok());
+    assert!(check_size(MAX_SIDE, 2048, "canvas").is_ok());
+    let s = err_text(check_size(0, 5, "canvas"));
+    assert!(s.contains("canvas") && s.contains("empty"), "{s}");
+    let s = err_text(check_size(MAX_SIDE + 1, 1, "canvas"));
+    assert!(s.contains("32768"), "{s}");
+    let s = err_text(check_size(MAX_SIDE, MAX_SIDE, "canvas"));
+    assert!(s.contains("67108864"), "{s}");
+    assert!(check_size(usize::MAX, usize::MAX, "x").is_err());
+}
+
+#[test]
+fn mask_threshold_alpha_and_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("m.png");
+    // white, grey 128, grey 127, black, transparent white, half-transparent white
+    let px = [
+        [255, 255, 255, 255],
+        [128, 128, 128, 255],
+        [127, 127, 127, 255],
+        [0, 0, 0, 255],
+        [255, 255, 255, 0],
+        [255, 255, 255, 100],
+    ];
+    ImageBuffer::<Rgba<u8>, _>::from_fn(6, 1, |x, _| Rgba(px[x as usize]))
+        .save(&p)
+        .unwrap();
+    assert_eq!(
+        load_mask(&p, 6, 1).unwrap(),
+        vec![true, true, false, false, false, false]
+    );
+    let s = err_text(load_mask(&p, 7, 2));
+    assert!(
+        s.contains("6x1") && s.contains("7x2") && s.contains("m.png"),
+        "{s}"
+    );
+
+    let pg = dir.path().join("g.png");
+    ImageBuffer::<LumaA<u8>, _>::from_fn(2, 1, |x, _| LumaA([255, [255, 0][x as usize]]))
+        .save(&pg)
+        .unwrap();
+    assert_eq!(load_mask(&pg, 2, 1).unwrap(), vec![true, false]);
+    assert!(err_text(load_mask(&dir.path().join("nope.png"), 1, 1)).contains("no such file"));
+}
+
+#[test]
+fn luminance_bt601() {
+    let img = ColorImage::from_vec(3, 1, vec![255, 0, 0, 0, 255, 0, 10, 20, 30]);
+    // 299*255/1000 = 76.245 → 76; 587*255/1000 = 149.685 → 150; (2990+11740+3420)/1000 = 18.15 → 18
+    assert_eq!(luminance(&img).data, vec![76, 150, 18]);
+    let white = ColorImage::from_vec(1, 1, vec![255; 3]);
+    assert_eq!(luminance(&white).data, vec![255]);
+}
+
+#[test]
+fn save_errors_are_clear() {
+    let dir = tempfile::tempdir().unwrap();
+    let img = pattern(2, 2);
+    let s = err_text(save_color(&dir.path().join("out.gif"), &img));
+    assert!(
+        s.contains("\".gif\"") && s.contains(".png") && s.contains(".webp"),
+        "{s}"
+    );
+    let s = err_text(save_color(&dir.path().join("out"), &img));
+    assert!(s.contains("no extension"), "{s}");
+    let s = err_text(check_writable(&dir.path().join("out.xyz")));
+    assert!(s.contains(".xyz"), "{s}");
+
+    let missing = dir.path().join("no/such/dir/out.png");
+    let s = err_text(save_color(&missing, &img));
+    assert!(
+        s.contains("does not exist") && s.contains("no/such/dir"),
+        "{s}"
+    );
+    let s = err_text(check_writable(&missing));
+    assert!(s.contains("does not exist"), "{s}");
+
+    let file = dir.path().join("plain");
+    fs::write(&file, "x").unwrap();
+    let s = err_text(save_color(&file.join("out.png"), &img));
+    assert!(s.contains("not a directory"), "{s}");
+
+    let d = dir.path().join("d.png");
+    fs::create_dir(&d).unwrap();
+    let s = err_text(save_color(&d, &img));
+    assert!(s.contains("is a directory"), "{s}");
+    assert!(check_writable(&d).is_err());
+
+    let bad = ColorImage {
+        width: 3,
+        height: 3,
+        rgb: vec![0; 5],
+    };
+    assert!(save_color(&dir.path().join("bad.png"), &bad).is_err());
+    assert!(save_gray(&dir.path().join("e.png"), &Gray::new(0, 4)).is_err());
+    no_temp_files(dir.path());
+}
+
+#[test]
+fn unwritable_directory() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let ro = dir.path().join("ro");
+    fs::create_dir(&ro).unwrap();
+    fs::set_permissions(&ro, fs::Permissions::from_mode(0o555)).unwrap();
+    // Root ignores directory permissions; only assert where they apply.
+    let enforced = File::create(ro.join("probe")).is_err();
+    let target = ro.join("out.png");
+    if enforced {
+        let s = err_text(check_writable(&target));
+        assert!(s.contains("not writable") && s.contains("ro"), "{s}");
+        let s = err_text(save_color(&target, &pattern(2, 2)));
+        assert!(s.contains("not writable"), "{s}");
+    }
+    fs::set_permissions(&ro, fs::Permissions::from_mode(0o755)).unwrap();
+    check_writable(&target).unwrap();
+    no_temp_files(&ro);
+    assert!(!target.exists());
+}
+
+#[test]
+fn save_bytes_is_atomic() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("report.json");
+    check_writable_any(&p).unwrap();
+    save_bytes(&p, b"{}").unwrap();
+    save_bytes(&p, b"{\"a\": 1}").unwrap();
+    assert_eq!(fs::read(&p).unwrap(), b"{\"a\": 1}");
+    assert!(check_writable(&p).is_err());
+    let s = err_text(save_bytes(&dir.path().join("nodir/r.json"), b"x"));
+    assert!(s.contains("does not exist"), "{s}");
+    no_temp_files(dir.path());
+}
+
+#[test]
+fn check_writable_leaves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    check_writable(&dir.path().join("a.tiff")).unwrap();
+    assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
+#[test]
+fn failed_save_keeps_target_and_removes_temp() {
+    let dir = tempfile::tempdir().unwrap();
+    let target = dir.path().join("keep.jpg");
+    fs::write(&target, b"original").unwrap();
+    // JPEG cannot encode a side over 65535: the encoder fails after the temp file exists.
+    let wide = ColorImage::new(70_000, 1);
+    let s = err_text(save_color(&target, &wide));
+    assert!(s.contains("keep.jpg"), "{s}");
+    assert_eq!(fs::read(&target).unwrap(), b"original");
+    no_temp_files(dir.path());
+
+    // A body that fails midway.
+    let r = write_atomic(&target, |w| {
+        w.write_all(b"partial").unwrap();
+        Err("boom".into())
+    });
+    assert!(r.unwrap_err().to_string().contains("boom"));
+    assert_eq!(fs::read(&target).unwrap(), b"original");
+    no_temp_files(dir.path());
+
+    // Success replaces the target and leaves no temp file.
+    save_color(&target, &pattern(8, 8)).unwrap();
+    assert_eq!(load_color(&target).unwrap().width, 8);
+    no_temp_files(dir.path());
+}
