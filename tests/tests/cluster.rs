@@ -153,6 +153,15 @@ impl SearchBackend for Hooked {
     }
 }
 
+/// A hook that kills the processes `pids` (SIGKILL) at `point`.
+fn kill_at(point: Point, pids: Vec<u32>) -> Hook {
+    Box::new(move |p| {
+        if p == point {
+            pids.iter().for_each(|&pid| sigkill(pid));
+        }
+    })
+}
+
 fn connect(opts: ClusterOptions) -> ClusterSearch {
     ClusterSearch::connect(opts, Engine::default()).unwrap()
 }
@@ -250,11 +259,7 @@ fn worker_killed_mid_level_output_unchanged() {
     let a = Worker::with_token(7, &token, 1);
     let b = Worker::with_token(8, &token, 1);
     let victim = b.pid();
-    let hook: Hook = Box::new(move |p| {
-        if p == Point::Search(1, 2) {
-            sigkill(victim);
-        }
-    });
+    let hook = kill_at(Point::Search(1, 2), vec![victim]);
     let (backend, _) = Hooked::new(
         connect(options(vec![a.spec(Some(&token)), b.spec(Some(&token))])),
         hook,
@@ -396,12 +401,7 @@ fn all_workers_killed_falls_back_to_local_search_bit_identical() {
     let token = Token::new();
     let a = Worker::with_token(11, &token, 1);
     let b = Worker::with_token(12, &token, 1);
-    let pids = [a.pid(), b.pid()];
-    let hook: Hook = Box::new(move |p| {
-        if p == Point::Search(1, 1) {
-            pids.iter().for_each(|&pid| sigkill(pid));
-        }
-    });
+    let hook = kill_at(Point::Search(1, 1), vec![a.pid(), b.pid()]);
     let (backend, _) = Hooked::new(
         connect(options(vec![a.spec(Some(&token)), b.spec(Some(&token))])),
         hook,
@@ -419,12 +419,7 @@ fn require_cluster_fails_cleanly_when_no_worker_is_left() {
     let token = Token::new();
     let a = Worker::with_token(13, &token, 1);
     let b = Worker::with_token(14, &token, 1);
-    let pids = [a.pid(), b.pid()];
-    let hook: Hook = Box::new(move |p| {
-        if p == Point::Search(1, 1) {
-            pids.iter().for_each(|&pid| sigkill(pid));
-        }
-    });
+    let hook = kill_at(Point::Search(1, 1), vec![a.pid(), b.pid()]);
     let (backend, _) = Hooked::new(
         connect(ClusterOptions {
             require_cluster: true,

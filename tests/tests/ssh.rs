@@ -245,6 +245,17 @@ fn start_sshd() -> Result<Sshd, String> {
     Ok(s)
 }
 
+/// The test sshd, or `None` (the test is skipped, and says why on stderr).
+fn sshd_or_skip() -> Option<Sshd> {
+    match start_sshd() {
+        Ok(s) => Some(s),
+        Err(why) => {
+            eprintln!("SKIPPED: cannot start a test sshd: {why}");
+            None
+        }
+    }
+}
+
 /// A hosts file with 2 ssh workers on 127.0.0.1 whose binary is a symlink in a
 /// unique directory (so `pgrep -f` finds exactly this test's workers).
 fn hosts_file(sshd: &Sshd, tag: &str) -> (PathBuf, String) {
@@ -266,13 +277,7 @@ fn hosts_file(sshd: &Sshd, tag: &str) -> (PathBuf, String) {
 
 #[test]
 fn two_workers_launched_over_ssh_match_the_local_engine_and_are_gone_afterwards() {
-    let sshd = match start_sshd() {
-        Ok(s) => s,
-        Err(why) => {
-            eprintln!("SKIPPED: cannot start a test sshd: {why}");
-            return;
-        }
-    };
+    let Some(sshd) = sshd_or_skip() else { return };
     let (hosts, marker) = hosts_file(&sshd, "inproc");
     let (running, launch) = read_hosts_file_launch(&hosts, None, true).unwrap();
     assert!(running.is_empty());
@@ -323,13 +328,7 @@ fn two_workers_launched_over_ssh_match_the_local_engine_and_are_gone_afterwards(
 
 #[test]
 fn master_killed_mid_run_leaves_no_worker_behind() {
-    let sshd = match start_sshd() {
-        Ok(s) => s,
-        Err(why) => {
-            eprintln!("SKIPPED: cannot start a test sshd: {why}");
-            return;
-        }
-    };
+    let Some(sshd) = sshd_or_skip() else { return };
     let (hosts, marker) = hosts_file(&sshd, "killed");
     let out = sshd.dir.path().join("out.png");
     let mut master = Command::new(harness::binary("texsyn"))

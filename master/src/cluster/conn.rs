@@ -1,4 +1,5 @@
-//! The master's side of the `texsyn.v1.Worker` calls. Every function takes and
+//! The master's side of the `texsyn.v1.Worker` calls (ARCHITECTURE §4.1, §4.4:
+//! bearer token, optional TLS). Every function takes and
 //! returns owned values (clients are cheap clones), so the cluster can run one
 //! per worker concurrently on its runtime; every call has a deadline, set both
 //! as the gRPC timeout header and as a local timer (a stopped worker never

@@ -103,46 +103,49 @@ pub fn read_hosts_file_launch(
     let mut launches = Vec::new();
     let mut running = Vec::new();
     for e in parsed.worker {
-        if let (true, Some(ssh)) = (launch, &e.ssh) {
-            ensure!(
-                !ssh.trim().is_empty()
-                    && !ssh.starts_with('-')
-                    && !ssh.contains(char::is_whitespace),
-                "ssh target '{ssh}' in the hosts file {} is not user@host",
-                path.display()
-            );
-            let (host, port) = match split_address(&e.address) {
-                Ok((h, p)) => (h, p),
-                Err(_) => {
-                    let h = e.address.trim().to_string();
-                    split_address(&format!("{h}:1")).with_context(|| {
-                        format!(
-                            "address '{}' in the hosts file {}",
-                            e.address,
-                            path.display()
-                        )
-                    })?;
-                    (h, 0)
-                }
-            };
-            if let Some(t) = e.threads {
-                ensure!(t > 0, "threads = 0 for {} in {}", e.address, path.display());
-            }
-            launches.push(LaunchSpec {
-                host,
-                port: e.port.unwrap_or(port),
-                ssh: ssh.clone(),
-                binary: e.binary.clone().unwrap_or_else(|| "texsyn-worker".into()),
-                threads: e.threads,
-                ssh_options: e.ssh_options.clone(),
-            });
-            continue;
+        match (launch, &e.ssh) {
+            (true, Some(ssh)) => launches.push(launch_spec(&e, ssh, path)?),
+            _ => running.push(entry_spec(e, path, base, default_token)?),
         }
-        running.push(entry_spec(e, path, base, default_token)?);
     }
     Ok((running, launches))
 }
 
+/// A `--launch` entry: the host to start a worker on over `ssh`.
+fn launch_spec(e: &HostEntry, ssh: &str, path: &Path) -> Result<LaunchSpec> {
+    ensure!(
+        !ssh.trim().is_empty() && !ssh.starts_with('-') && !ssh.contains(char::is_whitespace),
+        "ssh target '{ssh}' in the hosts file {} is not user@host",
+        path.display()
+    );
+    let (host, port) = match split_address(&e.address) {
+        Ok((h, p)) => (h, p),
+        Err(_) => {
+            let h = e.address.trim().to_string();
+            split_address(&format!("{h}:1")).with_context(|| {
+                format!(
+                    "address '{}' in the hosts file {}",
+                    e.address,
+                    path.display()
+                )
+            })?;
+            (h, 0)
+        }
+    };
+    if let Some(t) = e.threads {
+        ensure!(t > 0, "threads = 0 for {} in {}", e.address, path.display());
+    }
+    Ok(LaunchSpec {
+        host,
+        port: e.port.unwrap_or(port),
+        ssh: ssh.to_string(),
+        binary: e.binary.clone().unwrap_or_else(|| "texsyn-worker".into()),
+        threads: e.threads,
+        ssh_options: e.ssh_options.clone(),
+    })
+}
+
+/// A running worker's entry, with its token.
 fn entry_spec(
     e: HostEntry,
     path: &Path,
