@@ -402,7 +402,8 @@ mod tests {
         let l = LevelLoad::try_from(r.clone()).unwrap();
         assert_eq!((l.job_id.as_str(), l.level, l.geometry), ("job", 2, g));
         assert_eq!(l.plane_bytes(), 64 + 16);
-        assert_eq!(l.locate().unwrap().total(), 6 * 6);
+        // x, y in 1..=6 (3×3 window) with x/2, y/2 in 1..=2 (3×3 parent window).
+        assert_eq!(l.locate().unwrap().total(), 4 * 4);
         let mut bad = r.clone();
         bad.parent = None;
         let e = LevelLoad::try_from(bad).unwrap_err();

@@ -13,8 +13,9 @@
 //! The `unsafe fn`s here need two things from their caller: the CPU features of
 //! their `#[target_feature]`, and a [`Scan`] built by `Scan::new`. The latter
 //! asserted that the layout is padded (`hi_pad` and `lo_pad` are multiples of
-//! [`LANE`](crate::layout::LANE) = 32 bytes), that the queries have the same layout, and that
-//! `scan.vectors` holds `count × stride + SLACK` bytes. From that:
+//! [`LANE`](crate::layout::LANE) = 32 bytes), that the queries have the same
+//! layout, and that `scan.vectors` holds `count × stride + SLACK` bytes. From
+//! that:
 //! - A vector pointer is `vectors + i·stride` with `i < count` (rows) or
 //!   `i = 4g + j < 4·⌊count/4⌋` (AVX2 groups); the rest go to the safe scalar
 //!   [`tail`].
@@ -24,8 +25,9 @@
 //!   `hi_pad + lo_pad = stride`; AVX2 walks both parts in 32-byte chunks. So the
 //!   last byte loaded from vector `i` is byte `(i+1)·stride − 1`, inside
 //!   `count × stride`; the kernels never read past the last vector today, and
-//!   the [`SLACK`](crate::layout::SLACK) bytes after it (guaranteed all the same) are a margin for a
-//!   kernel whose last load is wider than the last chunk.
+//!   the [`SLACK`](crate::layout::SLACK) bytes after it, which `Scan::new`
+//!   guarantees anyway, are a margin for a kernel whose last load is wider than
+//!   the last chunk.
 //! - Query pointers index the padded copies of [`padded_queries`] (`nqp × stride`
 //!   bytes, query `g·group + j < nqp`) or one query's own `stride`-byte slice.
 //! - Stores go to `row` (`nqp` lanes, groups `g < nqp / group`) or a 4-lane
