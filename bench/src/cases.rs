@@ -99,7 +99,8 @@ impl Textures {
             if here.is_dir() {
                 here
             } else {
-                Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/textures")
+                let bench = Path::new(env!("CARGO_MANIFEST_DIR"));
+                bench.parent().unwrap_or(bench).join("assets/textures")
             }
         });
         if !dir.is_dir() {

@@ -76,3 +76,21 @@ fn main() -> ExitCode {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    #[test]
+    fn arguments_are_consistent() {
+        super::Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn default_textures_are_the_repository_assets() {
+        let t = crate::cases::Textures { textures: None };
+        let dir = t.dir().expect("assets/textures");
+        assert!(dir.join("gravel_gray_500.png").is_file());
+        assert!(dir.join("brick_gray_64.png").is_file());
+    }
+}
