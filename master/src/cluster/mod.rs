@@ -40,9 +40,9 @@ use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use rand::Rng;
-use texsyn_engine::{Engine, Hit, Layout, OwnedLevel, OwnedPlane, QueryBatch, VectorSpace};
+use texsyn_engine::{Engine, Hit, Layout, OwnedLevel, QueryBatch, VectorSpace};
 use texsyn_proto::v1 as pb;
-use texsyn_proto::wire::geometry_to_proto;
+use texsyn_proto::wire::load_level_request;
 use texsyn_proto::PROTOCOL_VERSION;
 
 pub use conn::{split_address, WorkerSpec};
@@ -163,13 +163,7 @@ impl LevelState {
 
     fn load_request(&self, job_id: &str) -> pb::LoadLevelRequest {
         let d = &self.data;
-        pb::LoadLevelRequest {
-            job_id: job_id.to_string(),
-            level: d.level as u32,
-            geometry: Some(geometry_to_proto(&d.geometry, &d.params)),
-            sample: Some(pb::Plane::from(&d.fine.view())),
-            parent: d.parent.as_ref().map(|p| pb::Plane::from(&p.view())),
-        }
+        load_level_request(job_id, d.level as u32, &d.geometry, &d.params, &d.sample())
     }
 }
 
@@ -286,14 +280,7 @@ impl SearchBackend for ClusterSearch {
         let _enter = span.enter();
         self.current_batch = None;
         self.level = Some(LevelState {
-            data: OwnedLevel {
-                level: data.level,
-                geometry: data.geometry,
-                params: data.params,
-                fine: OwnedPlane::of(&data.sample.fine),
-                parent: data.sample.parent.as_ref().map(OwnedPlane::of),
-                positions: data.positions.to_vec(),
-            },
+            data: data.owned_level(),
             expected_queries: data.expected_queries,
             queries: 0,
             rebalanced: false,

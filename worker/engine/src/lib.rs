@@ -1,6 +1,6 @@
 //! texsyn's search engine: the neighbourhood vector layout, the SIMD distance
 //! kernels and the exact exhaustive search (Stahlhut §6–§8), LBG codebooks
-//! (Stahlhut §9), calibration and the merge of partial answers.
+//! (Stahlhut §8), calibration and the merge of partial answers.
 //!
 //! This crate has no async and no network code. The master's in-process search
 //! and the worker's gRPC service both call the same [`Engine`]; nothing else in

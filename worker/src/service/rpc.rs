@@ -367,7 +367,7 @@ async fn search_batch(
 }
 
 /// The vectors of `range` of the level, or (with `probes` > 0) the LBG
-/// codebook trained over them and an empty placeholder space (Stahlhut §9,
+/// codebook trained over them and an empty placeholder space (Stahlhut §8,
 /// ARCHITECTURE §3.8).
 fn build_range(
     engine: &Engine,

@@ -1,4 +1,4 @@
-//! A trained LBG codebook and its approximate search (Stahlhut §9, ARCHITECTURE
+//! A trained LBG codebook and its approximate search (Stahlhut §8, ARCHITECTURE
 //! §3.8): score the seeds, then search the partitions of the `P` nearest exactly.
 
 use std::ops::Range;

@@ -1,4 +1,4 @@
-//! Kernel sinks of LBG (Stahlhut §9, ARCHITECTURE §3.8): nearest and second-nearest
+//! Kernel sinks of LBG (Stahlhut §8, ARCHITECTURE §3.8): nearest and second-nearest
 //! seed per vector while training, the nearest seeds per query and the best hit
 //! per query inside a partition. Ties go to the lowest seed or global index.
 

@@ -1,4 +1,4 @@
-//! LBG training (Stahlhut §9, ARCHITECTURE §3.8): exact assignment of every
+//! LBG training (Stahlhut §8, ARCHITECTURE §3.8): exact assignment of every
 //! vector to its nearest seed (brute force, or Hamerly's bounds for L1), the move
 //! step, and the partitions of the final seeds.
 
