@@ -628,25 +628,9 @@ fn master_refuses_wrong_token_and_version_mismatch_with_clear_errors() {
 #[test]
 fn tls_cluster_matches_the_local_engine() {
     let dir = tempfile::tempdir().unwrap();
-    let (cert, key) = (dir.path().join("cert.pem"), dir.path().join("key.pem"));
-    let made = std::process::Command::new("openssl")
-        .args(["req", "-x509", "-newkey", "ec", "-pkeyopt"])
-        .args(["ec_paramgen_curve:prime256v1", "-nodes", "-days", "1"])
-        .args([
-            "-subj",
-            "/CN=localhost",
-            "-addext",
-            "subjectAltName=DNS:localhost",
-        ])
-        .args(["-addext", "basicConstraints=critical,CA:FALSE", "-keyout"])
-        .arg(&key)
-        .arg("-out")
-        .arg(&cert)
-        .output();
-    if !made.as_ref().is_ok_and(|o| o.status.success()) {
-        eprintln!("skipped: openssl could not make a test certificate");
+    let Some((cert, key)) = texsyn_integration::self_signed_certificate(dir.path()) else {
         return;
-    }
+    };
     let token = Token::new();
     let w = Worker::start(
         1,

@@ -809,25 +809,9 @@ async fn shutdown_ends_open_search_streams() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn tls_with_token_serves() {
     let dir = tempfile::tempdir().unwrap();
-    let (cert, key) = (dir.path().join("cert.pem"), dir.path().join("key.pem"));
-    let made = std::process::Command::new("openssl")
-        .args(["req", "-x509", "-newkey", "ec", "-pkeyopt"])
-        .args(["ec_paramgen_curve:prime256v1", "-nodes", "-days", "1"])
-        .args([
-            "-subj",
-            "/CN=localhost",
-            "-addext",
-            "subjectAltName=DNS:localhost",
-        ])
-        .args(["-addext", "basicConstraints=critical,CA:FALSE", "-keyout"])
-        .arg(&key)
-        .arg("-out")
-        .arg(&cert)
-        .output();
-    if !made.as_ref().is_ok_and(|o| o.status.success()) {
-        eprintln!("skipped: openssl could not make a test certificate");
+    let Some((cert, key)) = texsyn_integration::self_signed_certificate(dir.path()) else {
         return;
-    }
+    };
     let tls = service::TlsIdentity::from_files(&cert, &key).unwrap();
     let w = Worker::start(WorkerConfig {
         tls: Some(tls),
