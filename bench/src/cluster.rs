@@ -204,7 +204,7 @@ pub fn run(a: &ClusterArgs) -> Result<()> {
     );
     let file = a.textures.dir()?.join("gravel_gray_500.png");
     let img = imaging::load_color(&file)?;
-    let lum = imaging::luminance(&img);
+    let lum = texsyn::ycbcr::luminance(&img);
     let parent = pyramid::downsample(&lum, None, false);
     let geometry = Geometry::new(11, Geometry::parent_window_for(11))?;
     let params = Params {

@@ -155,7 +155,7 @@ fn extend_keeps_the_sample_where_it_was_placed() {
 /// is the step between columns x and x+1, the last one is the wrap-around edge
 /// (column w-1 to column 0). `transpose` does the same for rows.
 fn column_steps(img: &ColorImage, transpose: bool) -> Vec<f64> {
-    let g = imaging::luminance(img);
+    let g = texsyn::ycbcr::luminance(img);
     let (w, h) = if transpose {
         (g.height, g.width)
     } else {

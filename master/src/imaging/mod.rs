@@ -26,7 +26,6 @@ mod io;
 #[cfg(test)]
 mod tests;
 
-pub use crate::ycbcr::{luma, luminance};
 pub use atomic::check_writable_any;
 pub use io::{check_writable, load_color, load_mask, save_bytes, save_color, save_gray};
 

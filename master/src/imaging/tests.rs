@@ -6,6 +6,7 @@ use std::path::Path;
 
 use super::atomic::write_atomic;
 use super::*;
+use crate::ycbcr::luminance;
 use image::{ImageBuffer, Luma, LumaA, Rgb, Rgba};
 
 fn pattern(w: usize, h: usize) -> ColorImage {

@@ -148,3 +148,38 @@ impl QueryBatch {
         &self.masks
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layout::Geometry;
+
+    #[test]
+    fn unpadded_round_trips_through_a_batch() {
+        let l = Geometry::new(5, 3).unwrap().layout();
+        let dims = l.dims();
+        let v: Vec<u8> = (0..dims).map(|i| i as u8 + 1).collect();
+        let m: Vec<u8> = (0..dims).map(|i| u8::from(i % 3 != 0)).collect();
+        let mut b = QueryBatch::new(l);
+        b.push(&v, &m).unwrap();
+        b.push_full(&v).unwrap();
+        let (values, masks) = b.unpadded();
+        assert_eq!(values.len(), 2 * dims);
+        let mut again = QueryBatch::new(l);
+        for q in 0..2 {
+            again
+                .push(
+                    &values[q * dims..(q + 1) * dims],
+                    &masks[q * dims..(q + 1) * dims],
+                )
+                .unwrap();
+        }
+        for q in 0..2 {
+            assert_eq!(again.values(q), b.values(q));
+            assert_eq!(again.mask(q), b.mask(q));
+        }
+        let (one_v, one_m) = b.unpadded_range(1..2);
+        assert_eq!(one_v, values[dims..]);
+        assert_eq!(one_m, masks[dims..]);
+    }
+}
