@@ -7,7 +7,8 @@ use std::net::SocketAddr;
 
 use anyhow::bail;
 use texsyn_engine::{
-    EngineError, Geometry, Hit, Metric, OwnedLevel, OwnedPlane, Params, Plane, Sample, Weights,
+    EngineError, Geometry, Hit, Metric, OwnedLevel, OwnedPlane, Params, Plane, QueryBatch, Sample,
+    Weights,
 };
 use tonic::Status;
 
@@ -241,6 +242,37 @@ impl LevelLoad {
             self.sample,
             self.parent,
         )
+    }
+}
+
+/// The bounds of queries `qs` of a batch as the two `SearchBatch` fields
+/// (index, distance); both empty when none of them has a bound.
+pub fn bounds_to_proto(batch: &QueryBatch, qs: std::ops::Range<usize>) -> (Vec<u64>, Vec<u64>) {
+    let b = &batch.bounds()[qs];
+    if b.iter().all(Hit::is_none) {
+        return (Vec::new(), Vec::new());
+    }
+    (
+        b.iter().map(|h| h.index).collect(),
+        b.iter().map(|h| h.dist).collect(),
+    )
+}
+
+/// The per-query bounds of a `SearchBatch` ([`Hit::NONE`] each when it has
+/// none), checked: both fields empty or both `count` long.
+pub fn bounds_from_proto(b: &pb::SearchBatch) -> Result<Vec<Hit>, Status> {
+    let count = b.count as usize;
+    match (b.bound_index.len(), b.bound_distance.len()) {
+        (0, 0) => Ok(vec![Hit::NONE; count]),
+        (i, d) if i == count && d == count => Ok(b
+            .bound_index
+            .iter()
+            .zip(&b.bound_distance)
+            .map(|(&index, &dist)| Hit { index, dist })
+            .collect()),
+        (i, d) => Err(invalid(format!(
+            "bound_index has {i} and bound_distance {d} entries; send none or one per query ({count})"
+        ))),
     }
 }
 

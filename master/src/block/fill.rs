@@ -8,7 +8,7 @@ use anyhow::{ensure, Context, Result};
 use texsyn_engine::{Geometry, Layout, QueryBatch};
 
 use super::canvas::{set_pixel, Canvas};
-use super::neighbourhood::{query, Shape};
+use super::neighbourhood::{candidates, query, Shape};
 use super::plan::LevelSample;
 use super::queue::BlockQueue;
 use super::{Config, Progress};
@@ -98,6 +98,7 @@ pub(super) fn fill_level(
     };
     let dims = ctx.layout.dims();
     let (mut values, mut mask) = (vec![0u8; dims], vec![0u8; dims]);
+    let mut cands = Vec::new();
     let mut stats = LevelStats {
         queries: 0,
         batches: 0,
@@ -121,6 +122,8 @@ pub(super) fn fill_level(
                 &mut mask,
             );
             batch.push(&values, &mask)?;
+            candidates(canvas, cx, cy, n, ctx.positions, &mut cands);
+            batch.set_candidates(batch.len() - 1, cands.clone());
         }
         let chosen = &batcher.chosen;
         let t = Instant::now();

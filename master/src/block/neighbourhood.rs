@@ -22,6 +22,51 @@ pub enum Shape {
     Causal { block: usize },
 }
 
+/// Most coherence candidates kept per query.
+const MAX_CANDIDATES: usize = 32;
+
+/// The coherence candidates of the block centred at (cx, cy) (Ashikhmin's
+/// coherence, k = 1): for each defined pixel of its N×N window, the sample
+/// position it was copied from shifted back by its offset, as global reference
+/// indices (distinct, at most [`MAX_CANDIDATES`]). They only seed the search's
+/// bound, so any choice gives the same answer (ARCHITECTURE §3.5).
+pub fn candidates(
+    canvas: &Canvas,
+    cx: isize,
+    cy: isize,
+    n: usize,
+    positions: &[[u32; 2]],
+    out: &mut Vec<u64>,
+) {
+    out.clear();
+    let r = (n / 2) as isize;
+    for dy in -r..=r {
+        for dx in -r..=r {
+            let Some(k) = canvas.index(cx + dx, cy + dy) else {
+                continue;
+            };
+            if !canvas.defined[k] {
+                continue;
+            }
+            let [sx, sy] = canvas.copy[k];
+            let (x, y) = (i64::from(sx) - dx as i64, i64::from(sy) - dy as i64);
+            let (Ok(x), Ok(y)) = (u32::try_from(x), u32::try_from(y)) else {
+                continue;
+            };
+            let Ok(i) = positions.binary_search_by_key(&(y, x), |p| (p[1], p[0])) else {
+                continue;
+            };
+            let i = i as u64;
+            if !out.contains(&i) {
+                out.push(i);
+                if out.len() == MAX_CANDIDATES {
+                    return;
+                }
+            }
+        }
+    }
+}
+
 /// Writes the search vector of the window centred at (cx, cy): `values` and
 /// `mask` hold N² hi components per channel then M² lo components per channel
 /// (channels: Y, or Y, Cb, Cr for full-colour search); mask 1 = compare.

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use texsyn_engine::Hit;
 use texsyn_proto::auth::BearerAuth;
 use texsyn_proto::v1 as pb;
-use texsyn_proto::wire::best_hits;
+use texsyn_proto::wire::{best_hits, bounds_from_proto};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::codegen::InterceptedService;
@@ -382,7 +382,8 @@ async fn ask_chunk(
 ) -> ClusterResult<(Vec<Hit>, f64)> {
     let missed = || ClusterError::Deadline(deadline.saturating_duration_since(started).as_millis());
     let at = tokio::time::Instant::from_std(deadline);
-    let (id, count) = (chunk.batch_id, chunk.count as usize);
+    let id = chunk.batch_id;
+    let bounds = bounds_from_proto(&chunk).map_err(|e| ClusterError::BadAnswer(e.message().into()))?;
     match tokio::time::timeout_at(at, stream.tx.send(chunk)).await {
         Ok(Ok(())) => {}
         Ok(Err(_)) => return Err(ClusterError::StreamClosed),
@@ -400,8 +401,8 @@ async fn ask_chunk(
             asked: id,
         });
     }
-    let h = best_hits(&r, count).map_err(|e| ClusterError::BadAnswer(format!("{e:#}")))?;
-    check_part(&h, count, range).map_err(ClusterError::BadAnswer)?;
+    let h = best_hits(&r, bounds.len()).map_err(|e| ClusterError::BadAnswer(format!("{e:#}")))?;
+    check_part(&h, &bounds, range).map_err(ClusterError::BadAnswer)?;
     let seconds = if r.seconds.is_finite() && r.seconds >= 0.0 {
         r.seconds
     } else {

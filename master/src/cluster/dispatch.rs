@@ -135,6 +135,8 @@ impl ClusterSearch {
             .enumerate()
             .map(|(k, q0)| {
                 let q1 = (q0 + per).min(n);
+                let (bound_index, bound_distance) =
+                    texsyn_proto::wire::bounds_to_proto(out.batch, q0..q1);
                 pb::SearchBatch {
                     job_id: self.opts.job_id.clone(),
                     level: lv as u32,
@@ -144,6 +146,8 @@ impl ClusterSearch {
                     values: out.values[q0 * dims..q1 * dims].to_vec(),
                     masks: out.masks[q0 * dims..q1 * dims].to_vec(),
                     epoch: self.epoch,
+                    bound_index,
+                    bound_distance,
                 }
             })
             .collect();
@@ -221,7 +225,10 @@ impl ClusterSearch {
             return Ok(Err(failures));
         }
         let refs: Vec<&[Hit]> = parts.iter().map(Vec::as_slice).collect();
-        let merged = texsyn_engine::merge_answers(n, &refs);
+        let merged = texsyn_engine::with_bounds(
+            out.batch.bounds(),
+            &texsyn_engine::merge_answers(n, &refs),
+        );
         self.after_batch(n, slow)?;
         Ok(Ok(merged))
     }

@@ -318,7 +318,17 @@ impl SearchBackend for ClusterSearch {
             queries = batch.len()
         );
         let _enter = span.enter();
-        self.search_batch(batch, batch_id)
+        // Exhaustive search starts from the coherence candidates' best, scored
+        // here from the planes, so every worker prunes against it (ARCHITECTURE
+        // §3.5); LBG answers are approximate and take no bound.
+        let batch = if self.lbg_probes == 0 {
+            let mut b = batch.clone();
+            level.data.bound_queries(&mut b);
+            b
+        } else {
+            batch.without_hints()
+        };
+        self.search_batch(&batch, batch_id)
     }
 
     fn end_level(&mut self) {

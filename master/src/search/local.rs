@@ -1,7 +1,7 @@
 //! Exhaustive search on this machine (Stahlhut §8, ARCHITECTURE §3.8).
 
 use anyhow::Result;
-use texsyn_engine::{Engine, Hit, Params, QueryBatch, VectorSpace};
+use texsyn_engine::{with_bounds, Engine, Hit, Params, PruneStats, QueryBatch, VectorSpace};
 
 use super::{level_space, LevelData, SearchBackend};
 
@@ -11,6 +11,8 @@ pub struct LocalSearch {
     engine: Engine,
     space: Option<VectorSpace>,
     params: Params,
+    /// Pruning figures of the current level.
+    prune: PruneStats,
 }
 
 impl LocalSearch {
@@ -19,6 +21,7 @@ impl LocalSearch {
             engine,
             space: None,
             params: Params::default(),
+            prune: PruneStats::default(),
         }
     }
 }
@@ -31,6 +34,7 @@ impl SearchBackend for LocalSearch {
     fn load_level(&mut self, level: &LevelData) -> Result<()> {
         self.space = Some(level_space(level)?);
         self.params = level.params;
+        self.prune = PruneStats::default();
         Ok(())
     }
 
@@ -39,9 +43,18 @@ impl SearchBackend for LocalSearch {
             .space
             .as_ref()
             .ok_or_else(|| anyhow::anyhow!("search before load_level"))?;
-        Ok(self
-            .engine
-            .search_best(space, space.start()..space.end(), queries, &self.params)?)
+        let (found, stats) = self.engine.search_best_counted(
+            space,
+            space.start()..space.end(),
+            queries,
+            &self.params,
+        )?;
+        self.prune.add(&stats);
+        Ok(with_bounds(queries.bounds(), &found))
+    }
+
+    fn level_prune(&self) -> Option<PruneStats> {
+        Some(self.prune)
     }
 
     fn end_level(&mut self) {

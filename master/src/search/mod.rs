@@ -16,7 +16,8 @@ pub use plan::{level_cost, Plan, PlannedSearch, Strategy};
 
 use anyhow::{ensure, Result};
 use texsyn_engine::{
-    Geometry, Hit, Layout, OwnedLevel, OwnedPlane, Params, QueryBatch, Sample, VectorSpace,
+    Geometry, Hit, Layout, OwnedLevel, OwnedPlane, Params, PruneStats, QueryBatch, Sample,
+    VectorSpace,
 };
 
 /// A level's reference data as the search sees it: the sample planes (the level
@@ -88,5 +89,9 @@ pub trait SearchBackend: Send {
     /// Backend-specific figures for the run report (workers, drops, codebooks...).
     fn stats(&self) -> serde_json::Value {
         serde_json::Value::Null
+    }
+    /// What pruning saved on the current level, for backends that count it.
+    fn level_prune(&self) -> Option<PruneStats> {
+        None
     }
 }

@@ -217,6 +217,14 @@ impl SearchBackend for PlannedSearch {
         self.backend().end_level();
     }
 
+    fn level_prune(&self) -> Option<texsyn_engine::PruneStats> {
+        match self.current {
+            Strategy::Cluster | Strategy::ClusterLbg => self.cluster.as_deref()?.level_prune(),
+            Strategy::Lbg => self.lbg.as_deref()?.level_prune(),
+            Strategy::Local => self.local.level_prune(),
+        }
+    }
+
     fn stats(&self) -> serde_json::Value {
         serde_json::json!({
             "plan": self.used.iter().map(|(l, s)| serde_json::json!({"level": l, "strategy": s})).collect::<Vec<_>>(),

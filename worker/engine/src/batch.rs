@@ -3,6 +3,7 @@
 
 use crate::error::{EngineError, Result};
 use crate::layout::Layout;
+use crate::merge::Hit;
 
 /// A batch of query vectors, each with its own mask of defined components
 /// (ARCHITECTURE §3.4: only masked-in components are compared).
@@ -14,6 +15,14 @@ pub struct QueryBatch {
     values: Vec<u8>,
     /// Padded masks, 0xFF = compare, 0 = ignore (padding is 0).
     masks: Vec<u8>,
+    /// Per query an answer already known to be valid (its index and exact
+    /// distance), or [`Hit::NONE`]: a search only looks for better ones and may
+    /// prune against it (ARCHITECTURE §3.5). Travels to the workers.
+    bounds: Vec<Hit>,
+    /// Per query the global indices worth trying first (coherence candidates);
+    /// the engine scores those inside its range before the scan to start from
+    /// a tight bound. Hints only: they never change the answer.
+    candidates: Vec<Vec<u64>>,
 }
 
 impl QueryBatch {
@@ -23,6 +32,8 @@ impl QueryBatch {
             len: 0,
             values: Vec::new(),
             masks: Vec::new(),
+            bounds: Vec::new(),
+            candidates: Vec::new(),
         }
     }
 
@@ -56,7 +67,45 @@ impl QueryBatch {
         self.layout.scatter(&v, &mut self.values[at..at + s]);
         self.layout.scatter(&m, &mut self.masks[at..at + s]);
         self.len += 1;
+        self.bounds.push(Hit::NONE);
+        self.candidates.push(Vec::new());
         Ok(())
+    }
+
+    /// Sets the known answer of query `q` (an index with its exact distance, or
+    /// [`Hit::NONE`]). A wrong distance makes the search wrong: callers compute
+    /// it with [`crate::distance`] from the level's own data.
+    pub fn set_bound(&mut self, q: usize, hit: Hit) {
+        self.bounds[q] = hit;
+    }
+
+    /// The known answer of query `q` ([`Hit::NONE`] if none).
+    pub fn bound(&self, q: usize) -> Hit {
+        self.bounds[q]
+    }
+
+    /// Every query's known answer.
+    pub fn bounds(&self) -> &[Hit] {
+        &self.bounds
+    }
+
+    /// Sets the coherence candidates of query `q` (global indices, tried first).
+    pub fn set_candidates(&mut self, q: usize, candidates: Vec<u64>) {
+        self.candidates[q] = candidates;
+    }
+
+    /// The coherence candidates of query `q`.
+    pub fn candidates(&self, q: usize) -> &[u64] {
+        &self.candidates[q]
+    }
+
+    /// The same queries without bounds or candidates: an unpruned search.
+    pub fn without_hints(&self) -> QueryBatch {
+        QueryBatch {
+            bounds: vec![Hit::NONE; self.len],
+            candidates: vec![Vec::new(); self.len],
+            ..self.clone()
+        }
     }
 
     /// Adds a query with every component defined.
@@ -106,8 +155,8 @@ impl QueryBatch {
         (values, masks)
     }
 
-    /// The queries `qs` of this batch, in that order (used by LBG to search
-    /// per-query partitions).
+    /// The queries `qs` of this batch, in that order, without bounds or
+    /// candidates (used by LBG to search per-query partitions).
     pub(crate) fn select(&self, qs: impl IntoIterator<Item = usize>) -> QueryBatch {
         let s = self.layout.stride();
         let mut out = QueryBatch::new(self.layout);
@@ -116,6 +165,8 @@ impl QueryBatch {
                 .extend_from_slice(&self.values[q * s..(q + 1) * s]);
             out.masks.extend_from_slice(&self.masks[q * s..(q + 1) * s]);
             out.len += 1;
+            out.bounds.push(Hit::NONE);
+            out.candidates.push(Vec::new());
         }
         out
     }
@@ -137,6 +188,8 @@ impl QueryBatch {
             len: count,
             values,
             masks,
+            bounds: vec![Hit::NONE; count],
+            candidates: vec![Vec::new(); count],
         }
     }
 

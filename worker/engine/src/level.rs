@@ -4,10 +4,12 @@
 //! worker holds one per loaded level, the cluster keeps one to rebuild vectors
 //! after a repartition, and the wire converts it to and from `LoadLevel`.
 
+use crate::batch::QueryBatch;
 use crate::error::Result;
-use crate::kernel::Params;
+use crate::kernel::{distance, Params};
 use crate::layout::Geometry;
-use crate::plane::{reference_positions, OwnedPlane, Sample};
+use crate::merge::Hit;
+use crate::plane::{gather, reference_positions, OwnedPlane, Sample};
 
 /// A level's sample planes, geometry, parameters and reference positions.
 #[derive(Debug, Clone)]
@@ -56,6 +58,38 @@ impl OwnedLevel {
     /// Number of reference vectors (global indices `0..total`).
     pub fn total(&self) -> u64 {
         self.positions.len() as u64
+    }
+
+    /// Sets each query's bound to the best of its bound and its coherence
+    /// candidates, each scored from the planes with the scalar reference
+    /// (ARCHITECTURE §3.5): how a master that holds no vectors gives its workers
+    /// a tight bound to prune against.
+    pub fn bound_queries(&self, queries: &mut QueryBatch) {
+        let layout = self.geometry.layout();
+        let sample = self.sample();
+        let (mut raw, mut padded) = (vec![0u8; layout.dims()], vec![0u8; layout.stride()]);
+        for q in 0..queries.len() {
+            let mut best = queries.bound(q);
+            for &c in queries.candidates(q) {
+                let Some(&[x, y]) = self.positions.get(c as usize) else {
+                    continue;
+                };
+                gather(&sample, &self.geometry, x as usize, y as usize, &mut raw);
+                layout.scatter(&raw, &mut padded);
+                let dist = distance(
+                    &layout,
+                    &self.params,
+                    &padded,
+                    queries.values(q),
+                    queries.mask(q),
+                );
+                let hit = Hit { index: c, dist };
+                if hit.key() < best.key() {
+                    best = hit;
+                }
+            }
+            queries.set_bound(q, best);
+        }
     }
 
     /// Bytes held: planes and positions.

@@ -71,35 +71,49 @@ pub fn merge_answers(queries: usize, parts: &[&[Hit]]) -> Vec<Hit> {
     best
 }
 
-/// Checks one worker's answer to `queries` queries over its assigned `range`:
-/// one hit per query, every index inside the range. An answer that fails is
-/// never merged (the worker is dropped and the batch asked again).
-pub fn check_part(hits: &[Hit], queries: usize, range: &Range<u64>) -> Result<(), String> {
+/// The final answer of a bounded search: per query the better of the
+/// query's known answer (its bound) and what the search found beyond it.
+pub fn with_bounds(bounds: &[Hit], found: &[Hit]) -> Vec<Hit> {
+    let mut out = bounds.to_vec();
+    merge_best(&mut out, found);
+    out
+}
+
+/// Checks one worker's answer over its assigned `range` to queries with the
+/// known answers `bounds` (one per query, [`Hit::NONE`] for none): one hit per
+/// query, each inside the range and strictly better than the query's bound, or
+/// [`Hit::NONE`] when the range holds nothing better than a real bound (an
+/// unbounded query over a non-empty range always has an answer). An answer
+/// that fails is never merged (the worker is dropped and the batch asked again).
+pub fn check_part(hits: &[Hit], bounds: &[Hit], range: &Range<u64>) -> Result<(), String> {
+    let queries = bounds.len();
     if hits.len() != queries {
         return Err(format!(
             "answered {} hits for {queries} queries",
             hits.len()
         ));
     }
-    if range.is_empty() {
-        return match hits.iter().find(|h| !h.is_none()) {
-            Some(h) => Err(format!(
-                "answered index {} although its range is empty",
-                h.index
-            )),
-            None => Ok(()),
-        };
+    for (h, b) in hits.iter().zip(bounds) {
+        if h.is_none() {
+            if b.is_none() && !range.is_empty() {
+                return Err(format!(
+                    "answered nothing for a query over its range {}..{}",
+                    range.start, range.end
+                ));
+            }
+        } else if !range.contains(&h.index) || h.dist == u64::MAX {
+            return Err(format!(
+                "answered index {} (distance {}) outside its range {}..{}",
+                h.index, h.dist, range.start, range.end
+            ));
+        } else if h.key() >= b.key() {
+            return Err(format!(
+                "answered index {} (distance {}), no better than the bound {} (distance {})",
+                h.index, h.dist, b.index, b.dist
+            ));
+        }
     }
-    match hits
-        .iter()
-        .find(|h| !range.contains(&h.index) || h.dist == u64::MAX)
-    {
-        Some(h) => Err(format!(
-            "answered index {} (distance {}) outside its range {}..{}",
-            h.index, h.dist, range.start, range.end
-        )),
-        None => Ok(()),
-    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -165,12 +179,26 @@ mod tests {
 
     #[test]
     fn answers_are_checked_against_the_range() {
-        assert!(check_part(&[h(5, 1), h(9, 0)], 2, &(5..10)).is_ok());
-        assert!(check_part(&[h(5, 1)], 2, &(5..10)).is_err());
-        assert!(check_part(&[h(10, 1), h(9, 0)], 2, &(5..10)).is_err());
-        assert!(check_part(&[h(4, 1)], 1, &(5..10)).is_err());
-        assert!(check_part(&[Hit::NONE], 1, &(5..10)).is_err());
-        assert!(check_part(&[Hit::NONE], 1, &(5..5)).is_ok());
-        assert!(check_part(&[h(5, 0)], 1, &(5..5)).is_err());
+        let free = [Hit::NONE; 2];
+        assert!(check_part(&[h(5, 1), h(9, 0)], &free, &(5..10)).is_ok());
+        assert!(check_part(&[h(5, 1)], &free, &(5..10)).is_err());
+        assert!(check_part(&[h(10, 1), h(9, 0)], &free, &(5..10)).is_err());
+        assert!(check_part(&[h(4, 1)], &free[..1], &(5..10)).is_err());
+        assert!(check_part(&[Hit::NONE], &free[..1], &(5..10)).is_err());
+        assert!(check_part(&[Hit::NONE], &free[..1], &(5..5)).is_ok());
+        assert!(check_part(&[h(5, 0)], &free[..1], &(5..5)).is_err());
+    }
+
+    #[test]
+    fn answers_must_beat_the_bound() {
+        let b = [h(20, 3)];
+        assert!(check_part(&[Hit::NONE], &b, &(5..10)).is_ok());
+        assert!(check_part(&[h(6, 2)], &b, &(5..10)).is_ok());
+        // A tie with a lower index beats the bound; with a higher one it does not.
+        assert!(check_part(&[h(6, 3)], &b, &(5..10)).is_ok());
+        assert!(check_part(&[h(6, 4)], &b, &(5..10)).is_err());
+        assert!(check_part(&[h(6, 3)], &[h(2, 3)], &(5..10)).is_err());
+        assert_eq!(with_bounds(&b, &[Hit::NONE]), vec![h(20, 3)]);
+        assert_eq!(with_bounds(&b, &[h(6, 3)]), vec![h(6, 3)]);
     }
 }

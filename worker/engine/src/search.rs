@@ -1,10 +1,16 @@
-//! Exact exhaustive nearest-neighbour search (Stahlhut §7, ARCHITECTURE §3.5).
+//! Exact nearest-neighbour search (Stahlhut §7, ARCHITECTURE §3.5).
 //!
 //! The range is cut into sub-ranges that rayon scores in parallel with one
 //! kernel pass each; the per-sub-range answers are merged by (distance, global
 //! index). Distances are integers and ties go to the lowest index, so the
 //! answer does not depend on the number of threads, the split, the kernel or
 //! (in the cluster) the number of workers.
+//!
+//! The search is exhaustive in its answers but not in its work: it starts from
+//! each query's known answer (its bound) improved by the coherence candidates
+//! inside the range, and the kernels abandon a vector as soon as its partial
+//! distance exceeds the best so far. Only vectors that cannot win are skipped,
+//! so the answer is the exhaustive one.
 
 use std::ops::Range;
 
@@ -12,20 +18,34 @@ use rayon::prelude::*;
 
 use crate::batch::QueryBatch;
 use crate::error::{EngineError, Result};
-use crate::kernel::{Kernel, Params, Scan, Sink};
+use crate::kernel::{distance, Kernel, Params, PruneStats, Scan, Sink};
 use crate::merge::{merge_best, merge_topk, Hit};
 use crate::space::VectorSpace;
 
+/// Per query the best (distance, index) so far, started from the query's
+/// bound. Comparisons are on the pair, so a vector that ties the bound with a
+/// lower index still wins.
 struct BestSink {
     dist: Vec<u64>,
     index: Vec<u64>,
+    stats: PruneStats,
+}
+
+impl BestSink {
+    fn from(start: &[Hit]) -> Self {
+        Self {
+            dist: start.iter().map(|h| h.dist).collect(),
+            index: start.iter().map(|h| h.index).collect(),
+            stats: PruneStats::default(),
+        }
+    }
 }
 
 impl Sink for BestSink {
     #[inline(always)]
     fn row(&mut self, index: u64, d: &[u64]) {
         for ((bd, bi), &x) in self.dist.iter_mut().zip(self.index.iter_mut()).zip(d) {
-            let better = x < *bd;
+            let better = x < *bd || (x == *bd && index < *bi);
             *bd = if better { x } else { *bd };
             *bi = if better { index } else { *bi };
         }
@@ -35,13 +55,22 @@ impl Sink for BestSink {
     fn run(&mut self, q: usize, first: u64, d: &[u64]) {
         let (mut bd, mut bi) = (self.dist[q], self.index[q]);
         for (k, &x) in d.iter().enumerate() {
-            if x < bd {
+            let index = first + k as u64;
+            if x < bd || (x == bd && index < bi) {
                 bd = x;
-                bi = first + k as u64;
+                bi = index;
             }
         }
         self.dist[q] = bd;
         self.index[q] = bi;
+    }
+
+    fn bounds(&self) -> Option<&[u64]> {
+        Some(&self.dist)
+    }
+
+    fn stats(&mut self, stats: PruneStats) {
+        self.stats.add(&stats);
     }
 }
 
@@ -72,6 +101,10 @@ impl TopKSink {
 }
 
 impl Sink for TopKSink {
+    fn bounds(&self) -> Option<&[u64]> {
+        Some(&self.worst)
+    }
+
     #[inline(always)]
     fn row(&mut self, index: u64, d: &[u64]) {
         for (q, &x) in d.iter().enumerate() {
@@ -196,7 +229,11 @@ impl Engine {
         )
     }
 
-    /// Best match per query in the global index `range` of `space`.
+    /// Best match per query in the global index `range` of `space` that is
+    /// better than the query's bound ([`QueryBatch::bound`]): the exhaustive
+    /// answer when the query has no bound, [`Hit::NONE`] when nothing in the
+    /// range beats it. Callers take the final answer with
+    /// [`crate::merge::with_bounds`].
     pub fn search_best(
         &self,
         space: &VectorSpace,
@@ -204,30 +241,77 @@ impl Engine {
         queries: &QueryBatch,
         params: &Params,
     ) -> Result<Vec<Hit>> {
+        Ok(self.search_best_counted(space, range, queries, params)?.0)
+    }
+
+    /// [`Engine::search_best`] with the pruning figures of the search.
+    pub fn search_best_counted(
+        &self,
+        space: &VectorSpace,
+        range: Range<u64>,
+        queries: &QueryBatch,
+        params: &Params,
+    ) -> Result<(Vec<Hit>, PruneStats)> {
         self.check(space, &range, queries)?;
-        let nq = queries.len();
-        let parts: Vec<Vec<Hit>> = self
+        let start = self.start_from_candidates(space, &range, queries, params);
+        let parts: Vec<(Vec<Hit>, PruneStats)> = self
             .chunks(&range)
             .into_par_iter()
             .map(|r| {
-                let mut sink = BestSink {
-                    dist: vec![u64::MAX; nq],
-                    index: vec![u64::MAX; nq],
-                };
+                let mut sink = BestSink::from(&start);
                 self.kernel
                     .scan(&self.scan(space, r, queries, params), &mut sink);
-                sink.dist
+                let hits = sink
+                    .dist
                     .iter()
                     .zip(&sink.index)
                     .map(|(&dist, &index)| Hit { index, dist })
-                    .collect()
+                    .collect();
+                (hits, sink.stats)
             })
             .collect();
-        let mut best = vec![Hit::NONE; nq];
-        for p in &parts {
+        let mut best = start;
+        let mut stats = PruneStats::default();
+        for (p, s) in &parts {
             merge_best(&mut best, p);
+            stats.add(s);
         }
-        Ok(best)
+        for (q, b) in best.iter_mut().enumerate() {
+            if *b == queries.bound(q) {
+                *b = Hit::NONE;
+            }
+        }
+        Ok((best, stats))
+    }
+
+    /// Per query its bound, improved by its coherence candidates inside `range`
+    /// (scored with the scalar reference: a handful per query).
+    fn start_from_candidates(
+        &self,
+        space: &VectorSpace,
+        range: &Range<u64>,
+        queries: &QueryBatch,
+        params: &Params,
+    ) -> Vec<Hit> {
+        let layout = space.layout();
+        (0..queries.len())
+            .map(|q| {
+                let mut best = queries.bound(q);
+                for &c in queries.candidates(q) {
+                    if !range.contains(&c) {
+                        continue;
+                    }
+                    if let Some(v) = space.vector(c) {
+                        let dist = distance(&layout, params, v, queries.values(q), queries.mask(q));
+                        let hit = Hit { index: c, dist };
+                        if hit.key() < best.key() {
+                            best = hit;
+                        }
+                    }
+                }
+                best
+            })
+            .collect()
     }
 
     /// Every distance of the range, query-major (`queries × range` values), from

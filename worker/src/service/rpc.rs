@@ -10,7 +10,9 @@ use texsyn_engine::lbg::{check_probes, default_seeds, range_seed};
 use texsyn_engine::{Codebook, Engine, Hit, LbgConfig, OwnedLevel, QueryBatch, VectorSpace};
 use texsyn_proto::v1 as proto;
 use texsyn_proto::v1::worker_server::Worker;
-use texsyn_proto::wire::{check_job_id, engine_status, invalid, LevelLoad, MAX_QUERIES, MAX_TOP_K};
+use texsyn_proto::wire::{
+    bounds_from_proto, check_job_id, engine_status, invalid, LevelLoad, MAX_QUERIES, MAX_TOP_K,
+};
 use texsyn_proto::PROTOCOL_VERSION;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
@@ -296,7 +298,14 @@ async fn search_batch(
             "count {count} must be in 1..={MAX_QUERIES}"
         )));
     }
+    let bounds = bounds_from_proto(&b)?;
+    let bounded = bounds.iter().any(|h| !h.is_none());
     let a = shared.assigned(&b.job_id, b.level, b.epoch)?;
+    if bounded && (a.lbg.is_some() || k > 1) {
+        return Err(invalid(
+            "bounds are for exhaustive best-1 search; send none with top_k > 1 or on an LBG assignment",
+        ));
+    }
     if a.lbg.is_some() && k > 1 {
         return Err(invalid(format!(
             "top_k {k} is not available on an LBG assignment; send top_k 0 or 1"
@@ -330,6 +339,9 @@ async fn search_batch(
             let mut q = QueryBatch::new(layout);
             for (v, m) in b.values.chunks_exact(dims).zip(b.masks.chunks_exact(dims)) {
                 q.push(v, m)?;
+            }
+            for (i, h) in bounds.into_iter().enumerate() {
+                q.set_bound(i, h);
             }
             let space = &a.space;
             let params = &a.level.params;

@@ -116,13 +116,62 @@ pub fn distance(layout: &Layout, params: &Params, v: &[u8], q: &[u8], mask: &[u8
     u64::from(params.weights.hi) * hi + u64::from(params.weights.lo) * lo
 }
 
-/// Receives distances from a kernel. Vectors always arrive in ascending index
-/// order per query, so a strict `<` keeps the lowest index among ties.
+/// What pruning saved in one search (ARCHITECTURE §3.5): the (vector, query)
+/// pairs scored, those abandoned before their last component, and the 32-byte
+/// chunks of components computed against the chunks a full scan computes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct PruneStats {
+    pub pairs: u64,
+    pub pruned: u64,
+    pub chunks: u64,
+    pub chunks_full: u64,
+}
+
+impl PruneStats {
+    pub fn add(&mut self, o: &PruneStats) {
+        self.pairs += o.pairs;
+        self.pruned += o.pruned;
+        self.chunks += o.chunks;
+        self.chunks_full += o.chunks_full;
+    }
+
+    /// Share of pairs abandoned early (vectors skipped per query).
+    pub fn pairs_skipped(&self) -> f64 {
+        ratio(self.pruned, self.pairs)
+    }
+
+    /// Share of the component work not done.
+    pub fn components_skipped(&self) -> f64 {
+        ratio(self.chunks_full.saturating_sub(self.chunks), self.chunks_full)
+    }
+}
+
+fn ratio(a: u64, b: u64) -> f64 {
+    if b == 0 {
+        0.0
+    } else {
+        a as f64 / b as f64
+    }
+}
+
+/// Receives distances from a kernel. Vectors arrive in ascending index order
+/// per query.
+///
+/// A sink with [`Sink::bounds`] accepts only distances at or below its bound,
+/// so a kernel may hand it, instead of a distance, any partial sum that already
+/// exceeds the bound: partial sums only grow (partial distance elimination).
 pub(crate) trait Sink {
     /// Distances of vector `index` to queries `0..d.len()`.
     fn row(&mut self, index: u64, d: &[u64]);
     /// Distances of query `q` to vectors `first..first + d.len()`.
     fn run(&mut self, q: usize, first: u64, d: &[u64]);
+    /// Per query the largest distance the sink can still accept; `None` when it
+    /// needs every distance exactly.
+    fn bounds(&self) -> Option<&[u64]> {
+        None
+    }
+    /// The pruning figures of the scan, once at its end.
+    fn stats(&mut self, _stats: PruneStats) {}
 }
 
 /// One pass of a kernel over `count` padded vectors, global indices from `base`.

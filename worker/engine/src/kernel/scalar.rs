@@ -1,6 +1,6 @@
 //! Portable scalar kernel: the reference the SIMD kernels are tested against.
 
-use super::{distance, Scan, Sink};
+use super::{distance, PruneStats, Scan, Sink};
 
 pub(crate) fn scan<S: Sink>(scan: &Scan, sink: &mut S) {
     let s = scan.layout.stride();
@@ -19,4 +19,12 @@ pub(crate) fn scan<S: Sink>(scan: &Scan, sink: &mut S) {
         }
         sink.row(scan.base + i as u64, &row);
     }
+    let pairs = (scan.count * nq) as u64;
+    let chunks = pairs * (scan.layout.stride() / crate::layout::LANE) as u64;
+    sink.stats(PruneStats {
+        pairs,
+        pruned: 0,
+        chunks,
+        chunks_full: chunks,
+    });
 }
