@@ -54,6 +54,19 @@ enum Command {
     Kernel(kernel::KernelArgs),
 }
 
+/// A level's pruning figures in a few words: pairs abandoned and component
+/// work skipped.
+pub(crate) fn prune_text(p: Option<texsyn_engine::PruneStats>) -> String {
+    match p {
+        Some(p) if p.pairs > 0 => format!(
+            "{:.1}% pairs, {:.1}% work",
+            100.0 * p.pairs_skipped(),
+            100.0 * p.components_skipped()
+        ),
+        _ => "-".into(),
+    }
+}
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(

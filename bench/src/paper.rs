@@ -75,8 +75,9 @@ pub fn run(a: &PaperArgs) -> Result<()> {
         );
         for l in &r.per_level {
             println!(
-                "    level {} canvas {:>4}x{:<4} refs {:>7} queries {:>6}  build {:>7.4} s  search {:>8.4} s  level {:>8.4} s",
-                l.level, l.canvas[0], l.canvas[1], l.reference_vectors, l.queries, l.build_seconds, l.search_seconds, l.total_seconds
+                "    level {} canvas {:>4}x{:<4} refs {:>7} queries {:>6}  build {:>7.4} s  search {:>8.4} s  level {:>8.4} s  pruned {}",
+                l.level, l.canvas[0], l.canvas[1], l.reference_vectors, l.queries, l.build_seconds, l.search_seconds, l.total_seconds,
+                crate::prune_text(l.prune)
             );
         }
         println!("    total synthesis time {:.4} s", r.synthesis_seconds);

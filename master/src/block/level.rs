@@ -98,17 +98,22 @@ pub(super) fn run_level(
         levels,
     };
     let stats = fill_level(&ctx, &mut canvas, backend, progress)?;
+    let prune = backend.level_prune();
     backend.end_level();
     let report = LevelReport {
         level: l,
         canvas: [lw, lh],
         sample: [ls.lum.width, ls.lum.height],
         reference_vectors: positions.len(),
+        vector_bytes: positions.len() as u64 * ctx.layout.stride() as u64,
         queries: stats.queries,
         batches: stats.batches,
         build_seconds,
         search_seconds: stats.search_seconds,
         total_seconds: level_started.elapsed().as_secs_f64(),
+        prune,
+        pairs_skipped: prune.map(|p| p.pairs_skipped()),
+        components_skipped: prune.map(|p| p.components_skipped()),
     };
     Ok(Level {
         canvas,

@@ -53,11 +53,21 @@ pub struct LevelReport {
     pub canvas: [usize; 2],
     pub sample: [usize; 2],
     pub reference_vectors: usize,
+    /// Bytes of the level's padded reference vectors (on this machine or
+    /// spread over the workers).
+    pub vector_bytes: u64,
     pub queries: u64,
     pub batches: u64,
     pub build_seconds: f64,
     pub search_seconds: f64,
     pub total_seconds: f64,
+    /// What pruning saved (ARCHITECTURE §3.5), where the backend counts it:
+    /// pairs scored and abandoned, chunks of components computed.
+    pub prune: Option<texsyn_engine::PruneStats>,
+    /// Share of (vector, query) pairs abandoned before their last component.
+    pub pairs_skipped: Option<f64>,
+    /// Share of the component work a full scan does that was skipped.
+    pub components_skipped: Option<f64>,
 }
 
 /// The machine-readable run report.

@@ -269,7 +269,7 @@ struct Stage {
 /// byte), then the hi part in two halves. After every stage but the last the
 /// partial distances are compared with the sink's bounds.
 struct Stages {
-    list: [Stage; 3],
+    list: [Stage; 4],
     len: usize,
     chunks: usize,
 }
@@ -284,7 +284,7 @@ impl Stages {
             lo: false,
         };
         let mut st = Self {
-            list: [none; 3],
+            list: [none; 4],
             len: 0,
             chunks: hi + lo,
         };
@@ -294,9 +294,15 @@ impl Stages {
                 st.len += 1;
             }
         };
+        let l1 = lo.min(1);
         push(Stage {
             from: plan.hi_pad,
-            chunks: lo,
+            chunks: l1,
+            lo: true,
+        });
+        push(Stage {
+            from: plan.hi_pad + l1 * 32,
+            chunks: lo - l1,
             lo: true,
         });
         let h1 = hi / 2;
@@ -429,19 +435,22 @@ unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
         // Padding queries (distance 0) get bound −1, so they never keep a
         // group of real queries from being abandoned.
         let mut bnd = vec![-1i64; nqp];
+        let pruning = sink.bounds().is_some();
+        // The bounds change only when the sink takes a row: refresh them then.
+        let mut stale = true;
         for i in 0..scan.count {
-            let pruning = match sink.bounds() {
-                Some(b) => {
+            if stale {
+                if let Some(b) = sink.bounds() {
                     for (x, &y) in bnd.iter_mut().zip(b) {
                         *x = signed(y);
                     }
-                    true
                 }
-                None => false,
-            };
+                stale = false;
+            }
             // As in `scan512`: vector i < count, query g·4 + j < nqp; `bnd`
             // and `row` hold nqp lanes.
             let v = [vp.add(i * s); 4];
+            let mut all_cut = true;
             for g in 0..nqp / 4 {
                 let q: [*const u8; 4] = std::array::from_fn(|j| qv.as_ptr().add((g * 4 + j) * s));
                 let m: [*const u8; 4] = std::array::from_fn(|j| qm.as_ptr().add((g * 4 + j) * s));
@@ -449,12 +458,17 @@ unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
                 let (d, done, cut) = score4::<L2>(&stages, w, &v, &q, &m, bound);
                 _mm256_storeu_si256(row.as_mut_ptr().add(g * 4).cast(), d);
                 let real = (nq - g * 4).min(4) as u64;
-                stats.pairs += real;
                 stats.chunks += real * done as u64;
                 stats.pruned += if cut { real } else { 0 };
+                all_cut &= cut;
             }
-            sink.row(scan.base + i as u64, &row[..nq]);
+            // A vector abandoned for every query cannot enter the sink.
+            if !all_cut {
+                sink.row(scan.base + i as u64, &row[..nq]);
+                stale = true;
+            }
         }
+        stats.pairs = (scan.count * nq) as u64;
     } else {
         let mut buf = [0u64; 4];
         let groups = scan.count / 4;
@@ -468,8 +482,10 @@ unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
                     .bounds()
                     .map(|b| _mm256_set1_epi64x(signed(b[qi])));
                 let (d, done, cut) = score4::<L2>(&stages, w, &v, &q, &m, bound);
-                _mm256_storeu_si256(buf.as_mut_ptr().cast(), d);
-                sink.run(qi, scan.base + (g * 4) as u64, &buf);
+                if !cut {
+                    _mm256_storeu_si256(buf.as_mut_ptr().cast(), d);
+                    sink.run(qi, scan.base + (g * 4) as u64, &buf);
+                }
                 stats.pairs += 4;
                 stats.chunks += 4 * done as u64;
                 stats.pruned += if cut { 4 } else { 0 };
