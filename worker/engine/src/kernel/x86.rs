@@ -399,6 +399,24 @@ unsafe fn score4<const L2: bool>(
     (weigh256(reduce4(&acc), w.0, w.1), done, false)
 }
 
+/// The quick first test of L1 partial distance elimination: when 4 queries
+/// define every component of the vector's first lo chunk (at byte `c`), their
+/// partial distances there are plain `vpsadbw` sums (values of undefined
+/// padding are 0 on both sides), weighted by `wl`. When all 4 exceed their
+/// bounds `b`, so the vector cannot win for any of them, returns those sums.
+#[inline(always)]
+unsafe fn quick_cut(
+    v0: __m256i,
+    q: &[*const u8; 4],
+    c: usize,
+    wl: __m256i,
+    b: __m256i,
+) -> Option<__m256i> {
+    let acc: [__m256i; 4] = std::array::from_fn(|j| _mm256_sad_epu8(v0, ld256(q[j].add(c))));
+    let d = _mm256_mul_epu32(reduce4(&acc), wl);
+    (_mm256_movemask_pd(_mm256_castsi256_pd(_mm256_cmpgt_epi64(d, b))) == 0xF).then_some(d)
+}
+
 /// A sink bound as a signed 64-bit lane (distances stay far below 2⁶³).
 #[inline(always)]
 fn signed(b: u64) -> i64 {
@@ -436,6 +454,22 @@ unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
         // group of real queries from being abandoned.
         let mut bnd = vec![-1i64; nqp];
         let pruning = sink.bounds().is_some();
+        // The quick first test (L1): offset of the first lo chunk when the
+        // first stage is that one chunk, and per group whether all 4 queries
+        // define every component of it.
+        let quick = (!L2 && stages.stages()[0].lo && stages.stages()[0].chunks == 1)
+            .then_some(plan.hi_pad);
+        let full: Vec<bool> = (0..nqp / 4)
+            .map(|g| {
+                quick.is_some_and(|c| {
+                    (0..4).all(|j| {
+                        let o = (g * 4 + j) * s + c;
+                        let len = scan.layout.lo_len.min(32);
+                        qm[o..o + len].iter().all(|&b| b == 0xFF)
+                    })
+                })
+            })
+            .collect();
         // The bounds change only when the sink takes a row: refresh them then.
         let mut stale = true;
         for i in 0..scan.count {
@@ -450,11 +484,22 @@ unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
             // As in `scan512`: vector i < count, query g·4 + j < nqp; `bnd`
             // and `row` hold nqp lanes.
             let v = [vp.add(i * s); 4];
+            // The first lo chunk of the vector, shared by every group's quick test.
+            let v0 = quick.map(|c| ld256(v[0].add(c)));
             let mut all_cut = true;
             for g in 0..nqp / 4 {
                 let q: [*const u8; 4] = std::array::from_fn(|j| qv.as_ptr().add((g * 4 + j) * s));
-                let m: [*const u8; 4] = std::array::from_fn(|j| qm.as_ptr().add((g * 4 + j) * s));
                 let bound = pruning.then(|| _mm256_loadu_si256(bnd.as_ptr().add(g * 4).cast()));
+                if let (Some(c), Some(v0), Some(b), true) = (quick, v0, bound, full[g]) {
+                    if let Some(d) = quick_cut(v0, &q, c, w.1, b) {
+                        // Partial sums above the bounds: the sink ignores them.
+                        _mm256_storeu_si256(row.as_mut_ptr().add(g * 4).cast(), d);
+                        stats.chunks += 4;
+                        stats.pruned += 4;
+                        continue;
+                    }
+                }
+                let m: [*const u8; 4] = std::array::from_fn(|j| qm.as_ptr().add((g * 4 + j) * s));
                 let (d, done, cut) = score4::<L2>(&stages, w, &v, &q, &m, bound);
                 _mm256_storeu_si256(row.as_mut_ptr().add(g * 4).cast(), d);
                 let real = (nq - g * 4).min(4) as u64;
