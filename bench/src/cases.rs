@@ -118,7 +118,7 @@ pub struct RunArgs {
     /// Batch size K.
     #[arg(long, default_value_t = 64)]
     pub batch: usize,
-    /// Repetitions (paper: of configuration (a); lbg: of the end-to-end (b) run);
+    /// Repetitions (paper: of each configuration; lbg: of the end-to-end (b) run);
     /// the best is reported.
     #[arg(long, default_value_t = 5)]
     pub reps: usize,

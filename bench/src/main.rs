@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 mod cases;
 mod cluster;
 mod kernel;
+mod large;
 mod lbg;
 mod paper;
 
@@ -18,6 +19,7 @@ const EXAMPLES: &str = "Examples:
   texsyn-bench lbg --lbg-probes 1,2,4
   texsyn-bench cluster --batches 60
   texsyn-bench kernel --vectors 240000 --dims 192 --queries 64
+  texsyn-bench large ../shared/textures/mossy_rock_color_1024.png --size 1024x1024 --unpruned
 
 Textures default to the repository's assets/textures (give --textures DIR elsewhere).";
 
@@ -52,6 +54,12 @@ enum Command {
         after_help = "Example: texsyn-bench kernel --vectors 240000 --dims 192 --queries 64"
     )]
     Kernel(kernel::KernelArgs),
+    /// A large sample end to end: pruned exact search against the unpruned
+    /// scan (same output) and Embark's texture-synthesis when installed.
+    #[command(
+        after_help = "Example: texsyn-bench large ../shared/textures/mossy_rock_color_1024.png --unpruned"
+    )]
+    Large(large::LargeArgs),
 }
 
 /// A level's pruning figures in a few words: pairs abandoned and component
@@ -80,6 +88,7 @@ fn main() -> ExitCode {
         Command::Lbg(a) => lbg::run(&a),
         Command::Cluster(a) => cluster::run(&a),
         Command::Kernel(a) => kernel::run(a),
+        Command::Large(a) => large::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

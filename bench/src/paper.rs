@@ -51,11 +51,7 @@ pub fn run(a: &PaperArgs) -> Result<()> {
     for case in which {
         let sample = texsyn::imaging::load_color(&dir.join(case.file))?;
         let (cfg, mode) = case.run(a.run.batch);
-        let reps = if case.name == "a" {
-            a.run.reps.max(1)
-        } else {
-            1
-        };
+        let reps = a.run.reps.max(1);
         let mut best: Option<Output> = None;
         for _ in 0..reps {
             let mut backend = LocalSearch::new(Engine::default());

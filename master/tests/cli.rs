@@ -135,6 +135,21 @@ fn bad_input_fails_cleanly() {
         &out,
         &["no such file", "/no/such/file.png"],
     );
+    // A level over the memory budget stops before it is built.
+    fails(
+        &[
+            "synth",
+            sm,
+            "-o",
+            o,
+            "--size",
+            "300x300",
+            "--max-memory",
+            "1",
+        ],
+        &out,
+        &["reference vectors need", "--local-workers", "--search auto"],
+    );
     fails(
         &["extend", s(&not_image), "-o", o, "--size", "200x200"],
         &out,

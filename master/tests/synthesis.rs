@@ -431,7 +431,13 @@ fn pruned_search_gives_the_same_synthesis_as_unpruned_exhaustive_search() {
         let unpruned = synthesize(&sample, &mode, &cfg, &mut reference, &Silent).unwrap();
         assert_eq!(pruned.image, unpruned.image, "{metric:?} {tileable}");
         assert_eq!(pruned.copy_map, unpruned.copy_map, "{metric:?} {tileable}");
-        let skipped = pruned.report.per_level.last().unwrap().pairs_skipped.unwrap();
+        let skipped = pruned
+            .report
+            .per_level
+            .last()
+            .unwrap()
+            .pairs_skipped
+            .unwrap();
         eprintln!("{metric:?} tileable={tileable}: finest level pairs skipped {skipped:.3}");
         assert!(skipped > 0.1, "finest level pruned only {skipped}");
     }

@@ -176,6 +176,8 @@ fn batch(
         values: q.0.clone(),
         masks: q.1.clone(),
         epoch: 0,
+        bound_index: Vec::new(),
+        bound_distance: Vec::new(),
     }
 }
 
@@ -612,6 +614,23 @@ async fn malformed_searches(c: &mut Client, q: &(Vec<u8>, Vec<u8>)) {
                 ..batch("job", 2, 0, 1, 4, q)
             },
             Code::FailedPrecondition,
+        ),
+        // Bounds: one per query in both fields, and only for best-1 search.
+        (
+            pb::SearchBatch {
+                bound_index: vec![0; 3],
+                bound_distance: vec![0; 4],
+                ..batch("job", 2, 0, 1, 4, q)
+            },
+            Code::InvalidArgument,
+        ),
+        (
+            pb::SearchBatch {
+                bound_index: vec![0; 4],
+                bound_distance: vec![0; 4],
+                ..batch("job", 2, 0, 3, 4, q)
+            },
+            Code::InvalidArgument,
         ),
     ];
     for (b, want) in bad_batches {

@@ -128,6 +128,11 @@ pub struct Common {
     /// falls below this (0 < T < 1).
     #[arg(long, default_value_t = texsyn_engine::lbg::DEFAULT_THRESHOLD)]
     pub lbg_threshold: f64,
+    /// Most megabytes the reference vectors of one level may take on this
+    /// machine (default: what the host or its cgroup still has). A level over
+    /// the budget stops the run with an error before it is built.
+    #[arg(long, value_name = "MB")]
+    pub max_memory: Option<u64>,
     /// No progress bars.
     #[arg(long, short)]
     pub quiet: bool,
@@ -382,7 +387,11 @@ fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) 
         Some(c) => (Some(c.options), c.local, c.ssh),
         None => (None, None, None),
     };
-    let mut backend = PlannedSearch::new(plan, LocalSearch::new(engine)).with_lbg(Box::new(lbg));
+    let mut local = LocalSearch::new(engine);
+    if let Some(mb) = common.max_memory {
+        local = local.with_max_memory(mb.saturating_mul(1 << 20));
+    }
+    let mut backend = PlannedSearch::new(plan, local).with_lbg(Box::new(lbg));
     backend.lbg_probes = u32::try_from(common.lbg_probes).unwrap_or(u32::MAX);
     if let Some(options) = cluster_options {
         let cluster = crate::cluster::ClusterSearch::connect(options, engine)?;

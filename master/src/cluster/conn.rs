@@ -383,7 +383,8 @@ async fn ask_chunk(
     let missed = || ClusterError::Deadline(deadline.saturating_duration_since(started).as_millis());
     let at = tokio::time::Instant::from_std(deadline);
     let id = chunk.batch_id;
-    let bounds = bounds_from_proto(&chunk).map_err(|e| ClusterError::BadAnswer(e.message().into()))?;
+    let bounds =
+        bounds_from_proto(&chunk).map_err(|e| ClusterError::BadAnswer(e.message().into()))?;
     match tokio::time::timeout_at(at, stream.tx.send(chunk)).await {
         Ok(Ok(())) => {}
         Ok(Err(_)) => return Err(ClusterError::StreamClosed),

@@ -225,10 +225,8 @@ impl ClusterSearch {
             return Ok(Err(failures));
         }
         let refs: Vec<&[Hit]> = parts.iter().map(Vec::as_slice).collect();
-        let merged = texsyn_engine::with_bounds(
-            out.batch.bounds(),
-            &texsyn_engine::merge_answers(n, &refs),
-        );
+        let merged =
+            texsyn_engine::with_bounds(out.batch.bounds(), &texsyn_engine::merge_answers(n, &refs));
         self.after_batch(n, slow)?;
         Ok(Ok(merged))
     }

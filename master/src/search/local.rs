@@ -1,6 +1,6 @@
 //! Exhaustive search on this machine (Stahlhut §8, ARCHITECTURE §3.8).
 
-use anyhow::Result;
+use anyhow::{bail, Result};
 use texsyn_engine::{with_bounds, Engine, Hit, Params, PruneStats, QueryBatch, VectorSpace};
 
 use super::{level_space, LevelData, SearchBackend};
@@ -13,6 +13,8 @@ pub struct LocalSearch {
     params: Params,
     /// Pruning figures of the current level.
     prune: PruneStats,
+    /// Most bytes a level's vectors may take (besides what the machine has).
+    max_memory: Option<u64>,
 }
 
 impl LocalSearch {
@@ -22,7 +24,40 @@ impl LocalSearch {
             space: None,
             params: Params::default(),
             prune: PruneStats::default(),
+            max_memory: None,
         }
+    }
+
+    /// Caps the bytes of a level's vectors below what the machine has.
+    pub fn with_max_memory(mut self, bytes: u64) -> Self {
+        self.max_memory = Some(bytes);
+        self
+    }
+
+    /// Refuses a level whose vectors would not fit the memory this process
+    /// can still use (host or cgroup, ARCHITECTURE §3.8) or the cap.
+    fn check_budget(&self, level: &LevelData) -> Result<()> {
+        let stride = level
+            .colour_vectors
+            .map_or_else(|| level.geometry.layout().stride(), |(l, _)| l.stride());
+        let need = level.positions.len() as u64 * stride as u64;
+        let room = texsyn_engine::budget::available_bytes();
+        let limit = match (room, self.max_memory) {
+            (Some(r), Some(m)) => Some(r.min(m)),
+            (r, m) => r.or(m),
+        };
+        if let Some(limit) = limit {
+            if need > limit {
+                bail!(
+                    "level {}: its {} reference vectors need {:.1} MB but this machine can give {:.1} MB; spread the search over workers (--workers or --local-workers N), use approximate search (--search auto), or a smaller sample or fewer --levels",
+                    level.level,
+                    level.positions.len(),
+                    need as f64 / 1e6,
+                    limit as f64 / 1e6
+                );
+            }
+        }
+        Ok(())
     }
 }
 
@@ -32,6 +67,8 @@ impl SearchBackend for LocalSearch {
     }
 
     fn load_level(&mut self, level: &LevelData) -> Result<()> {
+        self.space = None;
+        self.check_budget(level)?;
         self.space = Some(level_space(level)?);
         self.params = level.params;
         self.prune = PruneStats::default();

@@ -7,6 +7,7 @@
 //! texsyn searches. See docs/ARCHITECTURE.md for where it sits.
 
 pub mod batch;
+pub mod budget;
 pub mod calibrate;
 pub mod error;
 pub mod kernel;

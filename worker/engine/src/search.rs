@@ -29,14 +29,16 @@ struct BestSink {
     dist: Vec<u64>,
     index: Vec<u64>,
     stats: PruneStats,
+    prune: bool,
 }
 
 impl BestSink {
-    fn from(start: &[Hit]) -> Self {
+    fn from(start: &[Hit], prune: bool) -> Self {
         Self {
             dist: start.iter().map(|h| h.dist).collect(),
             index: start.iter().map(|h| h.index).collect(),
             stats: PruneStats::default(),
+            prune,
         }
     }
 }
@@ -66,7 +68,7 @@ impl Sink for BestSink {
     }
 
     fn bounds(&self) -> Option<&[u64]> {
-        Some(&self.dist)
+        self.prune.then_some(&self.dist[..])
     }
 
     fn stats(&mut self, stats: PruneStats) {
@@ -152,6 +154,9 @@ pub struct Engine {
     kernel: Kernel,
     /// Smallest sub-range handed to one rayon task, in vectors.
     min_chunk: usize,
+    /// Prune (candidates and partial distance elimination); off, every
+    /// component of every vector is scored, with the same answers.
+    prune: bool,
 }
 
 impl Default for Engine {
@@ -165,6 +170,7 @@ impl Engine {
         Self {
             kernel,
             min_chunk: 2048,
+            prune: true,
         }
     }
 
@@ -176,6 +182,13 @@ impl Engine {
     /// Sets the smallest sub-range per rayon task (tests use tiny values to force splits).
     pub fn with_min_chunk(mut self, min_chunk: usize) -> Self {
         self.min_chunk = min_chunk.max(1);
+        self
+    }
+
+    /// Turns pruning off (or on): the unpruned exhaustive scan, for benchmarks
+    /// and tests; the answers are the same.
+    pub fn with_pruning(mut self, prune: bool) -> Self {
+        self.prune = prune;
         self
     }
 
@@ -258,7 +271,7 @@ impl Engine {
             .chunks(&range)
             .into_par_iter()
             .map(|r| {
-                let mut sink = BestSink::from(&start);
+                let mut sink = BestSink::from(&start, self.prune);
                 self.kernel
                     .scan(&self.scan(space, r, queries, params), &mut sink);
                 let hits = sink
@@ -297,7 +310,12 @@ impl Engine {
         (0..queries.len())
             .map(|q| {
                 let mut best = queries.bound(q);
-                for &c in queries.candidates(q) {
+                let candidates = if self.prune {
+                    queries.candidates(q)
+                } else {
+                    &[]
+                };
+                for &c in candidates {
                     if !range.contains(&c) {
                         continue;
                     }

@@ -70,7 +70,9 @@ fn search_in_parts(
     let parts: Vec<Vec<Hit>> = edges
         .windows(2)
         .map(|w| {
-            let part = engine.search_best(space, w[0]..w[1], batch, params).unwrap();
+            let part = engine
+                .search_best(space, w[0]..w[1], batch, params)
+                .unwrap();
             check_part(&part, batch.bounds(), &(w[0]..w[1])).unwrap();
             part
         })
@@ -144,7 +146,10 @@ proptest! {
 /// (a block-sized hole, a side not yet grown) and bounds from nearby positions.
 #[test]
 fn pruned_search_equals_brute_force_on_a_real_level() {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/textures/gravel_gray_500.png");
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../assets/textures/gravel_gray_500.png"
+    );
     let img = image::open(path).unwrap().to_luma8();
     let (w, h) = (120usize, 120usize);
     let fine: Vec<u8> = (0..h)
@@ -186,18 +191,27 @@ fn pruned_search_equals_brute_force_on_a_real_level() {
                 *v = v.saturating_add(((q as usize * 7 + k) % 5) as u8);
             }
             batch.push(&raw, &mask).unwrap();
-            batch.set_candidates(batch.len() - 1, vec![(q * 977 + 12) % n, (q * 977 + 10) % n]);
+            batch.set_candidates(
+                batch.len() - 1,
+                vec![(q * 977 + 12) % n, (q * 977 + 10) % n],
+            );
         }
         let expect = brute(&space, &batch, &params);
         for k in Kernel::available() {
             for threads in [1, 2, 4] {
                 let e = Engine::new(k).with_min_chunk(64);
-                let got = pool(threads).install(|| search_in_parts(&e, &space, &batch, &params, &[n / 3, n / 2]));
+                let got = pool(threads)
+                    .install(|| search_in_parts(&e, &space, &batch, &params, &[n / 3, n / 2]));
                 assert_eq!(got, expect, "{} {} threads l2={l2}", k.name(), threads);
             }
         }
         // Pruning did its job on real data: most pairs were abandoned early.
-        let (_, stats) = Engine::default().search_best_counted(&space, 0..n, &batch, &params).unwrap();
-        assert!(stats.pairs_skipped() > 0.5 || Engine::default().kernel() == Kernel::Scalar, "{stats:?}");
+        let (_, stats) = Engine::default()
+            .search_best_counted(&space, 0..n, &batch, &params)
+            .unwrap();
+        assert!(
+            stats.pairs_skipped() > 0.5 || Engine::default().kernel() == Kernel::Scalar,
+            "{stats:?}"
+        );
     }
 }

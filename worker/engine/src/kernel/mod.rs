@@ -142,7 +142,10 @@ impl PruneStats {
 
     /// Share of the component work not done.
     pub fn components_skipped(&self) -> f64 {
-        ratio(self.chunks_full.saturating_sub(self.chunks), self.chunks_full)
+        ratio(
+            self.chunks_full.saturating_sub(self.chunks),
+            self.chunks_full,
+        )
     }
 }
 

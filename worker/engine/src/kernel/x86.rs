@@ -8,6 +8,10 @@
 //! `vpmuludq` apply the integer weights. The result equals the scalar reference
 //! exactly (integer arithmetic, no overflow: hi and lo sums stay below 2³²).
 //!
+//! The AVX2 kernel scores in stages and abandons pairs whose partial distance
+//! already exceeds the sink's bound (partial distance elimination,
+//! ARCHITECTURE §3.5); a pruning search on an AVX-512 CPU runs that code too.
+//!
 //! # Memory bounds (ARCHITECTURE §3.2)
 //!
 //! The `unsafe fn`s here need two things from their caller: the CPU features of
@@ -457,8 +461,8 @@ unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
         // The quick first test (L1): offset of the first lo chunk when the
         // first stage is that one chunk, and per group whether all 4 queries
         // define every component of it.
-        let quick = (!L2 && stages.stages()[0].lo && stages.stages()[0].chunks == 1)
-            .then_some(plan.hi_pad);
+        let quick =
+            (!L2 && stages.stages()[0].lo && stages.stages()[0].chunks == 1).then_some(plan.hi_pad);
         let full: Vec<bool> = (0..nqp / 4)
             .map(|g| {
                 quick.is_some_and(|c| {
@@ -487,10 +491,10 @@ unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
             // The first lo chunk of the vector, shared by every group's quick test.
             let v0 = quick.map(|c| ld256(v[0].add(c)));
             let mut all_cut = true;
-            for g in 0..nqp / 4 {
+            for (g, &full_g) in full.iter().enumerate() {
                 let q: [*const u8; 4] = std::array::from_fn(|j| qv.as_ptr().add((g * 4 + j) * s));
                 let bound = pruning.then(|| _mm256_loadu_si256(bnd.as_ptr().add(g * 4).cast()));
-                if let (Some(c), Some(v0), Some(b), true) = (quick, v0, bound, full[g]) {
+                if let (Some(c), Some(v0), Some(b), true) = (quick, v0, bound, full_g) {
                     if let Some(d) = quick_cut(v0, &q, c, w.1, b) {
                         // Partial sums above the bounds: the sink ignores them.
                         _mm256_storeu_si256(row.as_mut_ptr().add(g * 4).cast(), d);
@@ -523,9 +527,7 @@ unsafe fn scan256<const L2: bool, S: Sink>(scan: &Scan, sink: &mut S) {
             for qi in 0..nq {
                 let q = [scan.queries.values(qi).as_ptr(); 4];
                 let m = [scan.queries.mask(qi).as_ptr(); 4];
-                let bound = sink
-                    .bounds()
-                    .map(|b| _mm256_set1_epi64x(signed(b[qi])));
+                let bound = sink.bounds().map(|b| _mm256_set1_epi64x(signed(b[qi])));
                 let (d, done, cut) = score4::<L2>(&stages, w, &v, &q, &m, bound);
                 if !cut {
                     _mm256_storeu_si256(buf.as_mut_ptr().cast(), d);
