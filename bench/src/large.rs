@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::Instant;
 
-use anyhow::{ensure, Context, Result};
+use anyhow::{ensure, Result};
 use clap::Args;
 use texsyn::block::Silent;
 use texsyn::search::LocalSearch;
@@ -32,13 +32,6 @@ pub struct LargeArgs {
     /// Write the outputs into this directory.
     #[arg(long)]
     pub out: Option<PathBuf>,
-}
-
-fn parse_size(s: &str) -> Result<(usize, usize)> {
-    let (w, h) = s
-        .split_once('x')
-        .with_context(|| format!("--size '{s}' is not WxH, e.g. 1024x1024"))?;
-    Ok((w.trim().parse()?, h.trim().parse()?))
 }
 
 fn synth(
@@ -69,7 +62,7 @@ fn print_levels(what: &str, out: &Output) {
 }
 
 pub fn run(a: &LargeArgs) -> Result<()> {
-    let (w, h) = parse_size(&a.size)?;
+    let (w, h) = texsyn::cli::parse_size(&a.size)?;
     let sample = texsyn::imaging::load_color(&a.sample)?;
     let mut b = rayon::ThreadPoolBuilder::new();
     if let Some(t) = a.threads {

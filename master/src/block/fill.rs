@@ -98,7 +98,6 @@ pub(super) fn fill_level(
     };
     let dims = ctx.layout.dims();
     let (mut values, mut mask) = (vec![0u8; dims], vec![0u8; dims]);
-    let mut cands = Vec::new();
     let mut stats = LevelStats {
         queries: 0,
         batches: 0,
@@ -122,8 +121,8 @@ pub(super) fn fill_level(
                 &mut mask,
             );
             batch.push(&values, &mask)?;
-            candidates(canvas, cx, cy, n, ctx.positions, &mut cands);
-            batch.set_candidates(batch.len() - 1, cands.clone());
+            let cands = candidates(canvas, cx, cy, n, ctx.positions);
+            batch.set_candidates(batch.len() - 1, cands);
         }
         let chosen = &batcher.chosen;
         let t = Instant::now();

@@ -36,9 +36,8 @@ pub fn candidates(
     cy: isize,
     n: usize,
     positions: &[[u32; 2]],
-    out: &mut Vec<u64>,
-) {
-    out.clear();
+) -> Vec<u64> {
+    let mut out = Vec::new();
     let r = (n / 2) as isize;
     for dy in -r..=r {
         for dx in -r..=r {
@@ -60,11 +59,12 @@ pub fn candidates(
             if !out.contains(&i) {
                 out.push(i);
                 if out.len() == MAX_CANDIDATES {
-                    return;
+                    return out;
                 }
             }
         }
     }
+    out
 }
 
 /// Writes the search vector of the window centred at (cx, cy): `values` and
