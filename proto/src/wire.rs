@@ -7,8 +7,8 @@ use std::net::SocketAddr;
 
 use anyhow::bail;
 use texsyn_engine::{
-    EngineError, Geometry, Hit, Metric, OwnedLevel, OwnedPlane, Params, Plane, QueryBatch, Sample,
-    Weights,
+    EngineError, Geometry, Hit, Metric, OwnedLevel, OwnedPlane, Params, Plane, PruneStats,
+    QueryBatch, Sample, Weights,
 };
 use tonic::Status;
 
@@ -245,6 +245,29 @@ impl LevelLoad {
     }
 }
 
+/// Pruning figures of one search as they travel in a `SearchResult`.
+pub fn prune_to_proto(p: &PruneStats) -> pb::PruneCounts {
+    pb::PruneCounts {
+        pairs: p.pairs,
+        pruned: p.pruned,
+        chunks: p.chunks,
+        chunks_full: p.chunks_full,
+    }
+}
+
+/// The pruning figures of a `SearchResult` (zero when it carries none). They
+/// only feed the run report, so they are taken as sent.
+pub fn prune_from_proto(r: &pb::SearchResult) -> PruneStats {
+    r.prune
+        .as_ref()
+        .map_or(PruneStats::default(), |p| PruneStats {
+            pairs: p.pairs,
+            pruned: p.pruned,
+            chunks: p.chunks,
+            chunks_full: p.chunks_full,
+        })
+}
+
 /// The bounds of queries `qs` of a batch as the two `SearchBatch` fields
 /// (index, distance); both empty when none of them has a bound.
 pub fn bounds_to_proto(batch: &QueryBatch, qs: std::ops::Range<usize>) -> (Vec<u64>, Vec<u64>) {
@@ -476,6 +499,7 @@ mod tests {
             ],
             per_query: 2,
             seconds: 0.0,
+            prune: None,
         };
         assert_eq!(topk_hits(&r, 2).unwrap().len(), 2);
         assert!(topk_hits(&r, 3).is_err());

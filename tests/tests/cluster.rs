@@ -61,6 +61,36 @@ fn assert_same_as_local(out: &Output, what: &str) {
     );
 }
 
+/// Every level that searched reports the pruning its searches did, counted
+/// where they ran (workers and master): each (vector, query) pair once.
+fn assert_pruning_reported(out: &Output, what: &str) {
+    for l in &out.report.per_level {
+        let Some(p) = l.prune else {
+            assert_eq!(
+                l.queries, 0,
+                "{what}: level {} searched but reports no pruning",
+                l.level
+            );
+            continue;
+        };
+        assert_eq!(
+            p.pairs,
+            l.reference_vectors as u64 * l.queries,
+            "{what}: level {} pairs {p:?}",
+            l.level
+        );
+        assert!(
+            p.pruned <= p.pairs && p.chunks <= p.chunks_full,
+            "{what}: {p:?}"
+        );
+        assert!(
+            p.pruned > 0,
+            "{what}: level {} pruned nothing: {p:?}",
+            l.level
+        );
+    }
+}
+
 fn cluster_stats(out: &Output) -> &Value {
     &out.report.search_stats["cluster"]
 }
@@ -174,6 +204,7 @@ fn one_two_and_three_workers_match_the_local_engine() {
         let specs = workers[..n].iter().map(|w| w.spec(Some(&token))).collect();
         let out = run(Box::new(connect(options(specs)))).unwrap();
         assert_same_as_local(&out, &format!("{n} worker(s)"));
+        assert_pruning_reported(&out, &format!("{n} worker(s)"));
         let stats = cluster_stats(&out);
         for w in &workers[..n] {
             let s = worker_stats(stats, &w.address.to_string());
@@ -199,6 +230,7 @@ fn master_share_matches_the_local_engine() {
     })))
     .unwrap();
     assert_same_as_local(&out, "master share");
+    assert_pruning_reported(&out, "master share");
     let stats = cluster_stats(&out);
     assert!(
         stats["master"]["queries"].as_u64().unwrap() > 0,

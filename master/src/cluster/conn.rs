@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use texsyn_engine::Hit;
 use texsyn_proto::auth::BearerAuth;
 use texsyn_proto::v1 as pb;
-use texsyn_proto::wire::{best_hits, bounds_from_proto};
+use texsyn_proto::wire::{best_hits, bounds_from_proto, prune_from_proto};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::codegen::InterceptedService;
@@ -20,7 +20,7 @@ use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint};
 use tonic::{Request, Status, Streaming};
 
 use anyhow::{ensure, Context};
-use texsyn_engine::{check_part, CalibrationSize};
+use texsyn_engine::{check_part, CalibrationSize, PruneStats};
 
 use super::error::{ClusterError, ClusterResult};
 
@@ -333,6 +333,8 @@ pub(crate) struct PartAnswer {
     pub wall: f64,
     /// Search time the worker reported.
     pub search_seconds: f64,
+    /// Pruning figures the worker reported.
+    pub prune: PruneStats,
 }
 
 /// Sends the part's chunks one after the other on `stream` and reads each
@@ -341,12 +343,14 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
     let started = Instant::now();
     let mut hits = Vec::new();
     let mut search_seconds = 0.0;
+    let mut prune = PruneStats::default();
     let mut failure = None;
     for chunk in part.chunks {
         match ask_chunk(&mut stream, chunk, part.deadline, started, &part.range).await {
-            Ok((h, seconds)) => {
+            Ok((h, seconds, p)) => {
                 hits.extend(h);
                 search_seconds += seconds;
+                prune.add(&p);
             }
             Err(e) => {
                 failure = Some(e);
@@ -361,25 +365,28 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
             result: Err(e),
             wall,
             search_seconds,
+            prune,
         },
         None => PartAnswer {
             stream: Some(stream),
             result: Ok(hits),
             wall,
             search_seconds,
+            prune,
         },
     }
 }
 
 /// Sends one chunk and reads its answer before `deadline`: the checked hits
-/// and the search seconds the worker reported (0 when not a valid time).
+/// the search seconds the worker reported (0 when not a valid time) and its
+/// pruning figures.
 async fn ask_chunk(
     stream: &mut SearchStream,
     chunk: pb::SearchBatch,
     deadline: Instant,
     started: Instant,
     range: &Range<u64>,
-) -> ClusterResult<(Vec<Hit>, f64)> {
+) -> ClusterResult<(Vec<Hit>, f64, PruneStats)> {
     let missed = || ClusterError::Deadline(deadline.saturating_duration_since(started).as_millis());
     let at = tokio::time::Instant::from_std(deadline);
     let id = chunk.batch_id;
@@ -409,7 +416,7 @@ async fn ask_chunk(
     } else {
         0.0
     };
-    Ok((h, seconds))
+    Ok((h, seconds, prune_from_proto(&r)))
 }
 
 /// Runs `f` on `rt` from synchronous code. Inside another runtime's context

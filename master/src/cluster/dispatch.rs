@@ -164,9 +164,13 @@ impl ClusterSearch {
             return Ok(None);
         };
         let t = Instant::now();
-        let hits =
-            self.engine
-                .search_best(space, self.master.range.clone(), batch, &level.data.params)?;
+        let (hits, prune) = self.engine.search_best_counted(
+            space,
+            self.master.range.clone(),
+            batch,
+            &level.data.params,
+        )?;
+        self.level_prune.add(&prune);
         self.master.stats.search_seconds += t.elapsed().as_secs_f64();
         self.master.stats.queries += batch.len() as u64;
         self.master.stats.batches += 1;
@@ -246,6 +250,7 @@ impl ClusterSearch {
         let s = &mut self.slots[i];
         s.stream = a.stream;
         let hits = a.result?;
+        self.level_prune.add(&a.prune);
         s.level_pairs += s.len() as f64 * n as f64 * cost;
         s.level_seconds += a.search_seconds;
         s.stats.queries += n as u64;

@@ -40,7 +40,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use rand::Rng;
-use texsyn_engine::{Engine, Hit, Layout, OwnedLevel, QueryBatch, VectorSpace};
+use texsyn_engine::{Engine, Hit, Layout, OwnedLevel, PruneStats, QueryBatch, VectorSpace};
 use texsyn_proto::v1 as pb;
 use texsyn_proto::wire::load_level_request;
 use texsyn_proto::PROTOCOL_VERSION;
@@ -193,6 +193,8 @@ pub struct ClusterSearch {
     local_levels: Vec<usize>,
     /// LBG probes on the workers for the current level (0 = exhaustive).
     lbg_probes: u32,
+    /// Pruning figures of the current level: the workers' and the master's.
+    level_prune: PruneStats,
 }
 
 impl ClusterSearch {
@@ -231,6 +233,7 @@ impl ClusterSearch {
             events: Vec::new(),
             local_levels: Vec::new(),
             lbg_probes: 0,
+            level_prune: PruneStats::default(),
         };
         me.join_workers();
         if me.active_workers() == 0 {
@@ -288,6 +291,7 @@ impl SearchBackend for ClusterSearch {
         });
         self.master.space = None;
         self.master.range = 0..0;
+        self.level_prune = PruneStats::default();
         for s in &mut self.slots {
             s.range = 0..0;
             s.level_pairs = 0.0;
@@ -329,6 +333,12 @@ impl SearchBackend for ClusterSearch {
             batch.without_hints()
         };
         self.search_batch(&batch, batch_id)
+    }
+
+    /// The workers' and the master's pruning figures of the level; none for
+    /// LBG levels, whose searches do not prune.
+    fn level_prune(&self) -> Option<PruneStats> {
+        (self.level_prune.pairs > 0).then_some(self.level_prune)
     }
 
     fn end_level(&mut self) {

@@ -7,11 +7,14 @@ use std::time::Instant;
 use texsyn_engine::calibrate::{calibrate, CalibrationSize};
 use texsyn_engine::layout::SLACK;
 use texsyn_engine::lbg::{check_probes, default_seeds, range_seed};
-use texsyn_engine::{Codebook, Engine, Hit, LbgConfig, OwnedLevel, QueryBatch, VectorSpace};
+use texsyn_engine::{
+    Codebook, Engine, Hit, LbgConfig, OwnedLevel, PruneStats, QueryBatch, VectorSpace,
+};
 use texsyn_proto::v1 as proto;
 use texsyn_proto::v1::worker_server::Worker;
 use texsyn_proto::wire::{
-    bounds_from_proto, check_job_id, engine_status, invalid, LevelLoad, MAX_QUERIES, MAX_TOP_K,
+    bounds_from_proto, check_job_id, engine_status, invalid, prune_to_proto, LevelLoad,
+    MAX_QUERIES, MAX_TOP_K,
 };
 use texsyn_proto::PROTOCOL_VERSION;
 use tokio_stream::wrappers::ReceiverStream;
@@ -333,40 +336,45 @@ async fn search_batch(
     }
     let engine = shared.engine;
     let job_id = b.job_id;
-    let (hits, seconds) = shared
-        .run(move || -> texsyn_engine::Result<(Vec<Hit>, f64)> {
-            let t = Instant::now();
-            let mut q = QueryBatch::new(layout);
-            for (v, m) in b.values.chunks_exact(dims).zip(b.masks.chunks_exact(dims)) {
-                q.push(v, m)?;
-            }
-            for (i, h) in bounds.into_iter().enumerate() {
-                q.set_bound(i, h);
-            }
-            let space = &a.space;
-            let params = &a.level.params;
-            let range = space.start()..space.end();
-            let hits = if let Some((cb, probes)) = &a.lbg {
-                cb.search(&engine, &q, *probes)?
-            } else if space.is_empty() {
-                if k == 1 {
-                    vec![Hit::NONE; count]
+    let (hits, prune, seconds) = shared
+        .run(
+            move || -> texsyn_engine::Result<(Vec<Hit>, Option<PruneStats>, f64)> {
+                let t = Instant::now();
+                let mut q = QueryBatch::new(layout);
+                for (v, m) in b.values.chunks_exact(dims).zip(b.masks.chunks_exact(dims)) {
+                    q.push(v, m)?;
+                }
+                for (i, h) in bounds.into_iter().enumerate() {
+                    q.set_bound(i, h);
+                }
+                let space = &a.space;
+                let params = &a.level.params;
+                let range = space.start()..space.end();
+                let mut prune = None;
+                let hits = if let Some((cb, probes)) = &a.lbg {
+                    cb.search(&engine, &q, *probes)?
+                } else if space.is_empty() {
+                    if k == 1 {
+                        vec![Hit::NONE; count]
+                    } else {
+                        Vec::new()
+                    }
+                } else if k == 1 {
+                    let (hits, stats) = engine.search_best_counted(space, range, &q, params)?;
+                    prune = Some(stats);
+                    hits
                 } else {
-                    Vec::new()
-                }
-            } else if k == 1 {
-                engine.search_best(space, range, &q, params)?
-            } else {
-                let lists = engine.search_topk(space, range, &q, params, k)?;
-                if lists.iter().any(|l| l.len() != per_query) {
-                    return Err(texsyn_engine::EngineError::Parameter(
-                        "top-k lists of unequal length".into(),
-                    ));
-                }
-                lists.into_iter().flatten().collect()
-            };
-            Ok((hits, t.elapsed().as_secs_f64()))
-        })
+                    let lists = engine.search_topk(space, range, &q, params, k)?;
+                    if lists.iter().any(|l| l.len() != per_query) {
+                        return Err(texsyn_engine::EngineError::Parameter(
+                            "top-k lists of unequal length".into(),
+                        ));
+                    }
+                    lists.into_iter().flatten().collect()
+                };
+                Ok((hits, prune, t.elapsed().as_secs_f64()))
+            },
+        )
         .await?
         .map_err(engine_status)?;
     shared.touch(&job_id);
@@ -375,6 +383,7 @@ async fn search_batch(
         hits: hits.into_iter().map(|h| proto::Hit::from(&h)).collect(),
         per_query: per_query as u32,
         seconds,
+        prune: prune.as_ref().map(prune_to_proto),
     })
 }
 
