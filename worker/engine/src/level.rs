@@ -63,7 +63,8 @@ impl OwnedLevel {
     /// Sets each query's bound to the best of its bound and its coherence
     /// candidates, each scored from the planes with the scalar reference
     /// (ARCHITECTURE §3.5): how a master that holds no vectors gives its workers
-    /// a tight bound to prune against.
+    /// a tight bound to prune against. The candidates are used up: they are
+    /// cleared, so no search scores them again.
     pub fn bound_queries(&self, queries: &mut QueryBatch) {
         let layout = self.geometry.layout();
         let sample = self.sample();
@@ -89,6 +90,7 @@ impl OwnedLevel {
                 }
             }
             queries.set_bound(q, best);
+            queries.set_candidates(q, Vec::new());
         }
     }
 
