@@ -86,7 +86,7 @@ fn make_batches(
             let idx = rng.random_range(space.start()..space.end());
             let v = space.vector(idx).context("vector")?;
             let mut values = Vec::with_capacity(l.dims());
-            l.unpad_into(v, &mut values);
+            l.unpad_into(&v, &mut values);
             for x in &mut values {
                 *x = x.saturating_add(rng.random_range(0..3));
             }

@@ -20,6 +20,8 @@ const EXAMPLES: &str = "Examples:
   texsyn-bench cluster --batches 60
   texsyn-bench kernel --vectors 240000 --dims 192 --queries 64
   texsyn-bench large ../shared/textures/mossy_rock_color_1024.png --size 1024x1024 --unpruned
+  texsyn-bench upscale ../shared/textures/mossy_rock_color_1024.png -o /tmp/rock_8192.png --factor 8
+  /usr/bin/time -v texsyn synth /tmp/rock_8192.png -o /tmp/out.png --size 512x512 [--local-workers 2]
 
 Textures default to the repository's assets/textures (give --textures DIR elsewhere).";
 
@@ -60,6 +62,12 @@ enum Command {
         after_help = "Example: texsyn-bench large ../shared/textures/mossy_rock_color_1024.png --unpruned"
     )]
     Large(large::LargeArgs),
+    /// Makes a large sample from a photo by Lanczos upscaling (grey by
+    /// default), e.g. the 8192² sample of the large-sample case (3).
+    #[command(
+        after_help = "Example: texsyn-bench upscale ../shared/textures/mossy_rock_color_1024.png -o /tmp/rock_8192.png --factor 8"
+    )]
+    Upscale(large::UpscaleArgs),
 }
 
 /// A level's pruning figures in a few words: pairs abandoned and component
@@ -89,6 +97,7 @@ fn main() -> ExitCode {
         Command::Cluster(a) => cluster::run(&a),
         Command::Kernel(a) => kernel::run(a),
         Command::Large(a) => large::run(&a),
+        Command::Upscale(a) => large::upscale(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
-use texsyn_engine::Kernel;
+use texsyn_engine::{Kernel, Storage};
 use texsyn_proto::auth::{read_token, read_token_file};
 
 use crate::service::{TlsIdentity, WorkerConfig, DEFAULT_LISTEN};
@@ -90,6 +90,11 @@ pub struct ServeArgs {
     /// Kernel: auto, scalar, avx2, avx512.
     #[arg(long, default_value = "auto")]
     pub kernel: String,
+    /// How a range's vectors are held: dense (built once, fastest), planes
+    /// (gathered from the sample as they are scanned: about one byte per
+    /// sample pixel) or auto (dense while they fit in 1 GiB and half of --max-memory).
+    #[arg(long, default_value = "auto")]
+    pub vector_store: String,
     /// Read the shared token from the first line of stdin (never from the command line).
     #[arg(long, conflicts_with = "token_file")]
     pub token_stdin: bool,
@@ -144,6 +149,7 @@ impl TryFrom<ServeArgs> for WorkerConfig {
             max_message,
             idle_timeout: (a.idle_timeout > 0).then(|| Duration::from_secs(a.idle_timeout)),
             kernel: Kernel::from_name(&a.kernel)?,
+            storage: Storage::from_name(&a.vector_store)?,
         };
         config.validate()?;
         Ok(config)

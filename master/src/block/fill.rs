@@ -5,7 +5,7 @@
 use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
-use texsyn_engine::{Geometry, Layout, QueryBatch};
+use texsyn_engine::{Geometry, Layout, Positions, QueryBatch};
 
 use super::canvas::{set_pixel, Canvas};
 use super::neighbourhood::{candidates, query, Shape};
@@ -22,7 +22,7 @@ pub(super) struct LevelContext<'a> {
     /// The search vector layout (luminance, or Y, Cb and Cr for colour search).
     pub layout: Layout,
     /// Reference block centres in the level sample, by reference index.
-    pub positions: &'a [[u32; 2]],
+    pub positions: &'a Positions,
     pub geometry: &'a Geometry,
     pub cfg: &'a Config,
     /// Scan-line full synthesis: every block is searched and overwritten.
@@ -137,7 +137,7 @@ pub(super) fn fill_level(
         stats.queries += chosen.len() as u64;
         stats.batches += 1;
         for (&blk, hit) in chosen.iter().zip(&hits) {
-            let pos = *ctx.positions.get(hit.index as usize).with_context(|| {
+            let pos = ctx.positions.get(hit.index).with_context(|| {
                 format!(
                     "search answered index {} of {} references",
                     hit.index,

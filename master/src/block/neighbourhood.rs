@@ -7,6 +7,7 @@
 //! search ([`colour_vectors`]) is laid out the same way.
 
 use anyhow::{bail, Context, Result};
+use texsyn_engine::Positions;
 
 use super::canvas::Canvas;
 use super::plan::LevelSample;
@@ -35,7 +36,7 @@ pub fn candidates(
     cx: isize,
     cy: isize,
     n: usize,
-    positions: &[[u32; 2]],
+    positions: &Positions,
 ) -> Vec<u64> {
     let mut out = Vec::new();
     let r = (n / 2) as isize;
@@ -52,10 +53,9 @@ pub fn candidates(
             let (Ok(x), Ok(y)) = (u32::try_from(x), u32::try_from(y)) else {
                 continue;
             };
-            let Ok(i) = positions.binary_search_by_key(&(y, x), |p| (p[1], p[0])) else {
+            let Some(i) = positions.index_of(x, y) else {
                 continue;
             };
-            let i = i as u64;
             if !out.contains(&i) {
                 out.push(i);
                 if out.len() == MAX_CANDIDATES {
@@ -147,7 +147,7 @@ impl VectorWriter<'_> {
 /// windows, then (below the coarsest level) the parent's Y, Cb and Cr M×M windows.
 pub(super) fn colour_vectors(
     ls: &LevelSample,
-    positions: &[[u32; 2]],
+    positions: &Positions,
     n: usize,
     m: usize,
 ) -> Result<Vec<u8>> {
@@ -164,7 +164,7 @@ pub(super) fn colour_vectors(
     let (r, pr) = (n / 2, m / 2);
     let dims = 3 * (n * n + if parent.is_empty() { 0 } else { m * m });
     let mut out = Vec::with_capacity(positions.len() * dims);
-    for p in positions {
+    for p in positions.iter() {
         let (x, y) = (p[0] as usize, p[1] as usize);
         for plane in fine {
             for yy in y - r..=y + r {

@@ -133,6 +133,12 @@ pub struct Common {
     /// the budget stops the run with an error before it is built.
     #[arg(long, value_name = "MB")]
     pub max_memory: Option<u64>,
+    /// How a level's vectors are held on this machine: dense (built once,
+    /// fastest), planes (gathered from the sample as they are scanned: about
+    /// one byte per sample pixel, for large samples) or auto (dense up to
+    /// 1 GiB and half the memory left, planes beyond). Same output either way.
+    #[arg(long, value_name = "STORE", default_value = "auto")]
+    pub vector_store: String,
     /// No progress bars.
     #[arg(long, short)]
     pub quiet: bool,
@@ -387,7 +393,8 @@ fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) 
         Some(c) => (Some(c.options), c.local, c.ssh),
         None => (None, None, None),
     };
-    let mut local = LocalSearch::new(engine);
+    let mut local = LocalSearch::new(engine)
+        .with_storage(texsyn_engine::Storage::from_name(&common.vector_store)?);
     if let Some(mb) = common.max_memory {
         local = local.with_max_memory(mb.saturating_mul(1 << 20));
     }

@@ -450,11 +450,12 @@ impl ClusterSearch {
             self.master.space = None;
             if !range.is_empty() {
                 let d = &level.data;
-                self.master.space = Some(VectorSpace::build_from_positions(
+                self.master.space = Some(VectorSpace::build_with(
                     &d.sample(),
                     &d.geometry,
                     &d.positions,
                     range.clone(),
+                    texsyn_engine::Storage::Auto,
                 )?);
             }
         }

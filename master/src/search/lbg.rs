@@ -119,7 +119,7 @@ impl SearchBackend for LbgSearch {
         self.check_vectors(n)
             .with_context(|| format!("level {}", level.level))?;
         let t = Instant::now();
-        let space = crate::search::level_space(level)?;
+        let space = crate::search::level_space(level, texsyn_engine::Storage::Dense)?;
         let build_seconds = t.elapsed().as_secs_f64();
         let cfg = LbgConfig {
             seed: level_seed(self.config.seed, level.level),

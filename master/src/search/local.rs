@@ -1,7 +1,9 @@
 //! Exhaustive search on this machine (Stahlhut §8, ARCHITECTURE §3.8).
 
 use anyhow::{bail, Result};
-use texsyn_engine::{with_bounds, Engine, Hit, Params, PruneStats, QueryBatch, VectorSpace};
+use texsyn_engine::{
+    with_bounds, Engine, Hit, Params, PruneStats, QueryBatch, Storage, VectorSpace,
+};
 
 use super::{level_space, LevelData, SearchBackend};
 
@@ -15,6 +17,8 @@ pub struct LocalSearch {
     prune: PruneStats,
     /// Most bytes a level's vectors may take (besides what the machine has).
     max_memory: Option<u64>,
+    /// How a level's vectors are held.
+    storage: Storage,
 }
 
 impl LocalSearch {
@@ -25,7 +29,15 @@ impl LocalSearch {
             params: Params::default(),
             prune: PruneStats::default(),
             max_memory: None,
+            storage: Storage::Auto,
         }
+    }
+
+    /// Holds each level's vectors as `storage` says ([`Storage::Auto`]: dense
+    /// while they fit comfortably, gathered from the planes beyond).
+    pub fn with_storage(mut self, storage: Storage) -> Self {
+        self.storage = storage;
+        self
     }
 
     /// Caps the bytes of a level's vectors below what the machine has.
@@ -34,31 +46,51 @@ impl LocalSearch {
         self
     }
 
-    /// Refuses a level whose vectors would not fit the memory this process
-    /// can still use (host or cgroup, ARCHITECTURE §3.8) or the cap.
-    fn check_budget(&self, level: &LevelData) -> Result<()> {
-        let stride = level
-            .colour_vectors
-            .map_or_else(|| level.geometry.layout().stride(), |(l, _)| l.stride());
-        let need = level.positions.len() as u64 * stride as u64;
+    /// The storage for the level's vectors, refusing a level that would not
+    /// fit the memory this process can still use (host or cgroup,
+    /// ARCHITECTURE §3.8) or the cap.
+    fn plan_storage(&self, level: &LevelData) -> Result<Storage> {
+        let n = level.positions.len() as u64;
         let room = texsyn_engine::budget::available_bytes();
         let limit = match (room, self.max_memory) {
             (Some(r), Some(m)) => Some(r.min(m)),
             (r, m) => r.or(m),
         };
+        let (storage, need) = match level.colour_vectors {
+            Some((layout, _)) => (Storage::Dense, n * layout.stride() as u64),
+            None => {
+                let dense = n * level.geometry.layout().stride() as u64;
+                match self.storage.resolve(dense, limit) {
+                    Storage::Dense => (Storage::Dense, dense),
+                    _ => (Storage::Planes, plane_bytes(level)),
+                }
+            }
+        };
         if let Some(limit) = limit {
             if need > limit {
                 bail!(
-                    "level {}: its {} reference vectors need {:.1} MB but this machine can give {:.1} MB; spread the search over workers (--workers or --local-workers N), use approximate search (--search auto), or a smaller sample or fewer --levels",
+                    "level {}: its {} reference vectors need {:.1} MB ({} storage) but this machine can give {:.1} MB; spread the search over workers (--workers or --local-workers N), use approximate search (--search auto), or a smaller sample or fewer --levels",
                     level.level,
-                    level.positions.len(),
+                    n,
                     need as f64 / 1e6,
+                    storage.name(),
                     limit as f64 / 1e6
                 );
             }
         }
-        Ok(())
+        Ok(storage)
     }
+}
+
+/// Bytes a plane-backed space of the level holds: its planes.
+fn plane_bytes(level: &LevelData) -> u64 {
+    let p = |w: usize, h: usize| (w * h) as u64;
+    p(level.sample.fine.width, level.sample.fine.height)
+        + level
+            .sample
+            .parent
+            .as_ref()
+            .map_or(0, |q| p(q.width, q.height))
 }
 
 impl SearchBackend for LocalSearch {
@@ -68,8 +100,13 @@ impl SearchBackend for LocalSearch {
 
     fn load_level(&mut self, level: &LevelData) -> Result<()> {
         self.space = None;
-        self.check_budget(level)?;
-        self.space = Some(level_space(level)?);
+        let storage = self.plan_storage(level)?;
+        self.space = Some(level_space(level, storage)?);
+        tracing::debug!(
+            level = level.level,
+            storage = storage.name(),
+            "level vectors built"
+        );
         self.params = level.params;
         self.prune = PruneStats::default();
         Ok(())

@@ -16,8 +16,8 @@ pub use plan::{level_cost, Plan, PlannedSearch, Strategy};
 
 use anyhow::{ensure, Result};
 use texsyn_engine::{
-    Geometry, Hit, Layout, OwnedLevel, OwnedPlane, Params, PruneStats, QueryBatch, Sample,
-    VectorSpace,
+    Geometry, Hit, Layout, OwnedLevel, OwnedPlane, Params, Positions, PruneStats, QueryBatch,
+    Sample, Storage, VectorSpace,
 };
 
 /// A level's reference data as the search sees it: the sample planes (the level
@@ -28,7 +28,7 @@ pub struct LevelData<'a> {
     pub params: Params,
     pub sample: Sample<'a>,
     /// All reference positions of the level in global-index order.
-    pub positions: &'a [[u32; 2]],
+    pub positions: &'a Positions,
     /// Pyramid levels of the run (level 0 = finest).
     pub levels: usize,
     /// Blocks still to be synthesised on this level (about the number of queries).
@@ -49,22 +49,24 @@ impl LevelData<'_> {
             params: self.params,
             fine: OwnedPlane::of(&self.sample.fine),
             parent: self.sample.parent.as_ref().map(OwnedPlane::of),
-            positions: self.positions.to_vec(),
+            positions: self.positions.clone(),
         }
     }
 }
 
 /// The level's reference vectors on this machine: luminance vectors built from
-/// the sample planes, or the master's full-colour vectors.
-pub fn level_space(level: &LevelData) -> Result<VectorSpace> {
+/// the sample planes and held as `storage` says, or the master's full-colour
+/// vectors (always dense).
+pub fn level_space(level: &LevelData, storage: Storage) -> Result<VectorSpace> {
     let n = level.positions.len() as u64;
     Ok(match level.colour_vectors {
         Some((layout, raw)) => VectorSpace::from_unpadded(layout, 0, raw)?,
-        None => VectorSpace::build_from_positions(
+        None => VectorSpace::build_with(
             &level.sample,
             &level.geometry,
             level.positions,
             0..n,
+            storage,
         )?,
     })
 }

@@ -10,6 +10,7 @@ use crate::kernel::{distance, Params};
 use crate::layout::Geometry;
 use crate::merge::Hit;
 use crate::plane::{gather, reference_positions, OwnedPlane, Sample};
+use crate::positions::Positions;
 
 /// A level's sample planes, geometry, parameters and reference positions.
 #[derive(Debug, Clone)]
@@ -22,7 +23,7 @@ pub struct OwnedLevel {
     /// The parent plane; `None` exactly when `geometry.m == 0`.
     pub parent: Option<OwnedPlane>,
     /// All reference positions of the level in global-index order.
-    pub positions: Vec<[u32; 2]>,
+    pub positions: Positions,
 }
 
 impl OwnedLevel {
@@ -40,10 +41,9 @@ impl OwnedLevel {
             params,
             fine,
             parent,
-            positions: Vec::new(),
+            positions: Positions::new(),
         };
         out.positions = reference_positions(&out.sample(), &out.geometry)?;
-        out.positions.shrink_to_fit();
         Ok(out)
     }
 
@@ -72,7 +72,7 @@ impl OwnedLevel {
         for q in 0..queries.len() {
             let mut best = queries.bound(q);
             for &c in queries.candidates(q) {
-                let Some(&[x, y]) = self.positions.get(c as usize) else {
+                let Some([x, y]) = self.positions.get(c) else {
                     continue;
                 };
                 gather(&sample, &self.geometry, x as usize, y as usize, &mut raw);
@@ -94,10 +94,15 @@ impl OwnedLevel {
         }
     }
 
+    /// Bytes of the planes (what a plane-backed space of the level copies).
+    pub fn plane_bytes(&self) -> u64 {
+        (self.fine.pixels.len() + self.parent.as_ref().map_or(0, |p| p.pixels.len())) as u64
+    }
+
     /// Bytes held: planes and positions.
     pub fn bytes(&self) -> u64 {
         self.fine.bytes()
             + self.parent.as_ref().map_or(0, OwnedPlane::bytes)
-            + (self.positions.capacity() * std::mem::size_of::<[u32; 2]>()) as u64
+            + self.positions.bytes()
     }
 }

@@ -16,6 +16,7 @@ pub mod lbg;
 pub mod level;
 pub mod merge;
 pub mod plane;
+pub mod positions;
 pub mod search;
 pub mod space;
 
@@ -28,5 +29,6 @@ pub use lbg::{Codebook, LbgConfig, LbgStats};
 pub use level::OwnedLevel;
 pub use merge::{check_part, merge_answers, merge_best, merge_topk, with_bounds, Hit};
 pub use plane::{OwnedPlane, Plane, Sample};
+pub use positions::Positions;
 pub use search::Engine;
-pub use space::VectorSpace;
+pub use space::{Storage, VectorSpace};

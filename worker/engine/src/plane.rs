@@ -4,6 +4,7 @@
 
 use crate::error::{EngineError, Result};
 use crate::layout::Geometry;
+use crate::positions::Positions;
 
 /// A borrowed u8 image plane with an optional defined-mask (non-zero = defined).
 #[derive(Debug, Clone, Copy)]
@@ -138,7 +139,7 @@ fn window_clear(
 /// All reference positions of a level in scan-line order (their order is the
 /// global index that ties break on, ARCHITECTURE §3.3): every pixel whose N×N window,
 /// and M×M parent window around (x/2, y/2), lie inside the sample and are defined.
-pub fn reference_positions(sample: &Sample, geometry: &Geometry) -> Result<Vec<[u32; 2]>> {
+pub fn reference_positions(sample: &Sample, geometry: &Geometry) -> Result<Positions> {
     if geometry.m > 0 && sample.parent.is_none() {
         return Err(EngineError::Geometry(format!(
             "geometry has a {0}×{0} parent window but no parent plane was given",
@@ -155,7 +156,7 @@ pub fn reference_positions(sample: &Sample, geometry: &Geometry) -> Result<Vec<[
     let psat = sample.parent.as_ref().map(|p| (p, p.undefined_sat()));
     let r = geometry.radius();
     let pr = geometry.parent_radius();
-    let mut out = Vec::new();
+    let mut out = Positions::new();
     for y in 0..f.height {
         for x in 0..f.width {
             if !window_clear(&sat, f.width, x, y, r, f.width, f.height) {
@@ -166,7 +167,7 @@ pub fn reference_positions(sample: &Sample, geometry: &Geometry) -> Result<Vec<[
                     continue;
                 }
             }
-            out.push([x as u32, y as u32]);
+            out.push(x as u32, y as u32);
         }
     }
     Ok(out)
@@ -207,7 +208,10 @@ mod tests {
         def[3 * w + 5] = 0;
         let fine = Plane::new(w, h, &px, Some(&def)).unwrap();
         let g = Geometry::new(3, 0).unwrap();
-        let pos = reference_positions(&Sample { fine, parent: None }, &g).unwrap();
+        let pos: Vec<[u32; 2]> = reference_positions(&Sample { fine, parent: None }, &g)
+            .unwrap()
+            .iter()
+            .collect();
         for p in &pos {
             let (x, y) = (p[0] as i64, p[1] as i64);
             assert!(x >= 1 && y >= 1 && x <= 8 && y <= 6);

@@ -225,21 +225,20 @@ impl Engine {
             .collect()
     }
 
-    fn scan<'a>(
+    /// Runs the kernel over the vectors of `r` into `sink`, block by block for
+    /// a plane-backed space (the sink sees the vectors in index order either way).
+    fn scan<S: Sink>(
         &self,
-        space: &'a VectorSpace,
+        space: &VectorSpace,
         r: Range<u64>,
-        queries: &'a QueryBatch,
+        queries: &QueryBatch,
         params: &Params,
-    ) -> Scan<'a> {
-        Scan::new(
-            space.layout(),
-            *params,
-            space.slice(r.clone()),
-            (r.end - r.start) as usize,
-            r.start,
-            queries,
-        )
+        sink: &mut S,
+    ) {
+        space.for_each_block(r, |vectors, count, base| {
+            let scan = Scan::new(space.layout(), *params, vectors, count, base, queries);
+            self.kernel.scan(&scan, sink);
+        });
     }
 
     /// Best match per query in the global index `range` of `space` that is
@@ -272,8 +271,7 @@ impl Engine {
             .into_par_iter()
             .map(|r| {
                 let mut sink = BestSink::from(&start, self.prune);
-                self.kernel
-                    .scan(&self.scan(space, r, queries, params), &mut sink);
+                self.scan(space, r, queries, params, &mut sink);
                 let hits = sink
                     .dist
                     .iter()
@@ -320,7 +318,8 @@ impl Engine {
                         continue;
                     }
                     if let Some(v) = space.vector(c) {
-                        let dist = distance(&layout, params, v, queries.values(q), queries.mask(q));
+                        let dist =
+                            distance(&layout, params, &v, queries.values(q), queries.mask(q));
                         let hit = Hit { index: c, dist };
                         if hit.key() < best.key() {
                             best = hit;
@@ -348,8 +347,7 @@ impl Engine {
             n,
             out: vec![0; n * queries.len()],
         };
-        self.kernel
-            .scan(&self.scan(space, range, queries, params), &mut sink);
+        self.scan(space, range, queries, params, &mut sink);
         Ok(sink.out)
     }
 
@@ -377,8 +375,7 @@ impl Engine {
                     lists: vec![Vec::with_capacity(k + 1); nq],
                     worst: vec![u64::MAX; nq],
                 };
-                self.kernel
-                    .scan(&self.scan(space, r, queries, params), &mut sink);
+                self.scan(space, r, queries, params, &mut sink);
                 sink.lists
             })
             .collect();

@@ -1,10 +1,20 @@
 //! The padded reference vectors of one global index range (ARCHITECTURE §3.2–§3.3),
 //! in 64-byte aligned memory with [`SLACK`] readable bytes after the last
 //! vector, as the SIMD kernels scan them (Stahlhut §7).
+//!
+//! A space either holds every vector ([`Storage::Dense`], `stride` bytes per
+//! sample pixel) or only the sample planes they are cut from
+//! ([`Storage::Planes`], about one byte per pixel), gathering each block of
+//! vectors into a small buffer just before the kernel scans it. Both give the
+//! kernels the same bytes, so the answers are the same.
+
+use std::borrow::Cow;
+use std::ops::Range;
 
 use crate::error::{EngineError, Result};
 use crate::layout::{Geometry, Layout, SLACK};
-use crate::plane::{gather, reference_positions, Sample};
+use crate::plane::{reference_positions, Plane, Sample};
+use crate::positions::Positions;
 
 /// A zeroed byte buffer whose start is 64-byte aligned, so that a 64-byte SIMD
 /// load of a vector at a multiple-of-64 offset never splits a cache line.
@@ -31,19 +41,251 @@ impl AlignedBytes {
     }
 }
 
+/// How a [`VectorSpace`] holds its vectors.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Storage {
+    /// [`Storage::Dense`] when the vectors take at most [`DENSE_LIMIT`] bytes
+    /// and half the memory the machine can still give, [`Storage::Planes`]
+    /// otherwise.
+    #[default]
+    Auto,
+    /// Every padded vector built once: fastest, `stride` bytes per vector.
+    Dense,
+    /// Only the sample planes: vectors are gathered block by block as they
+    /// are scanned, so memory is about the size of the sample.
+    Planes,
+}
+
+/// Largest vector data [`Storage::Auto`] builds densely.
+pub const DENSE_LIMIT: u64 = 1 << 30;
+
+/// Vectors per block a plane-backed space gathers for one kernel pass (a few
+/// hundred kilobytes: the block stays in the core's L2 while it is scanned).
+const BLOCK: usize = 1024;
+
+impl Storage {
+    /// Parses `auto`, `dense` or `planes`.
+    pub fn from_name(name: &str) -> Result<Self> {
+        match name.to_ascii_lowercase().as_str() {
+            "auto" => Ok(Self::Auto),
+            "dense" => Ok(Self::Dense),
+            "planes" => Ok(Self::Planes),
+            _ => Err(EngineError::Parameter(format!(
+                "unknown vector storage '{name}'; use auto, dense or planes"
+            ))),
+        }
+    }
+
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Dense => "dense",
+            Self::Planes => "planes",
+        }
+    }
+
+    /// The storage for `vector_bytes` of dense vectors when `room` bytes are
+    /// left on this machine (`None`: unknown).
+    pub fn resolve(self, vector_bytes: u64, room: Option<u64>) -> Self {
+        match self {
+            Self::Auto => {
+                let fits =
+                    vector_bytes <= DENSE_LIMIT && room.is_none_or(|r| vector_bytes <= r / 2);
+                if fits {
+                    Self::Dense
+                } else {
+                    Self::Planes
+                }
+            }
+            other => other,
+        }
+    }
+}
+
+/// A sample plane copied with [`PIECE`] readable bytes after its last pixel,
+/// so a row of any window is read in whole 16-byte pieces.
+#[derive(Debug, Clone)]
+struct PaddedPlane {
+    width: usize,
+    height: usize,
+    pixels: Vec<u8>,
+}
+
+/// Bytes a plane-backed gather reads or writes at once; a window row is
+/// copied in whole pieces, so up to `PIECE − 1` bytes past its end too.
+const PIECE: usize = 16;
+
+impl PaddedPlane {
+    fn of(p: &Plane) -> Self {
+        let mut pixels = Vec::with_capacity(p.pixels.len() + PIECE);
+        pixels.extend_from_slice(p.pixels);
+        pixels.resize(p.pixels.len() + PIECE, 0);
+        Self {
+            width: p.width,
+            height: p.height,
+            pixels,
+        }
+    }
+
+    /// Whether the `side`×`side` windows centred at (x..x + len, y) lie inside
+    /// the plane.
+    fn holds(&self, x: usize, y: usize, len: usize, side: usize) -> bool {
+        let r = side / 2;
+        x >= r && y >= r && x + len - 1 + r < self.width && y + r < self.height
+    }
+}
+
+/// The planes a plane-backed space gathers its vectors from.
+#[derive(Debug, Clone)]
+struct PlaneSource {
+    geometry: Geometry,
+    fine: PaddedPlane,
+    parent: Option<PaddedPlane>,
+}
+
+/// Copies the `side`×`side` window whose top-left pixel is `src` row by row
+/// to `dst`, in [`PIECE`]-byte pieces.
+///
+/// # Safety
+/// `src + yy·width + c` must be readable for `PIECE` bytes and `dst + k + c`
+/// writable for `PIECE` bytes, for every row `yy < side`, every piece start
+/// `c < side` and `k = yy·side`.
+#[inline(always)]
+unsafe fn copy_window(src: *const u8, width: usize, side: usize, dst: *mut u8) {
+    for yy in 0..side {
+        let mut c = 0;
+        while c < side {
+            // SAFETY: the caller guarantees both ranges (see above).
+            unsafe {
+                std::ptr::copy_nonoverlapping(
+                    src.add(yy * width + c),
+                    dst.add(yy * side + c),
+                    PIECE,
+                )
+            };
+            c += PIECE;
+        }
+    }
+}
+
+/// Zeroes `dst..dst + len` in [`PIECE`]-byte pieces.
+///
+/// # Safety
+/// `dst` must be writable for `len` rounded up to a multiple of `PIECE` bytes.
+#[inline(always)]
+unsafe fn zero(dst: *mut u8, len: usize) {
+    let mut z = 0;
+    while z < len {
+        // SAFETY: the caller guarantees the rounded-up range.
+        unsafe { std::ptr::write_bytes(dst.add(z), 0, PIECE) };
+        z += PIECE;
+    }
+}
+
+/// Bytes from a vector's start that gathering it may write: its stride and
+/// what its last pieces run over.
+fn write_span(layout: &Layout, g: &Geometry) -> usize {
+    let round = |len: usize| len.div_ceil(PIECE) * PIECE;
+    let rows = |side: usize| side.saturating_sub(1) * side + round(side);
+    let mut span = layout.stride().max(rows(g.n));
+    span = span.max(layout.hi_len + round(layout.hi_pad - layout.hi_len));
+    if g.m > 0 {
+        span = span.max(layout.hi_pad + rows(g.m));
+    }
+    span.max(layout.hi_pad + layout.lo_len + round(layout.lo_pad - layout.lo_len))
+}
+
+impl PlaneSource {
+    /// Writes the padded vectors of the run (x..x + len, y) one after another
+    /// from `dst[at..]`; up to `PIECE` bytes after the last one are
+    /// overwritten too.
+    ///
+    /// # Panics
+    /// If a window of the run leaves its plane or `dst` is too short.
+    fn gather_run(
+        &self,
+        layout: &Layout,
+        x: usize,
+        y: usize,
+        len: usize,
+        dst: &mut [u8],
+        at: usize,
+    ) {
+        if len == 0 {
+            return;
+        }
+        let g = &self.geometry;
+        let s = layout.stride();
+        assert!(
+            self.fine.holds(x, y, len, g.n)
+                && self.parent.as_ref().is_none_or(|p| p.holds(
+                    x / 2,
+                    y / 2,
+                    (x + len - 1) / 2 - x / 2 + 1,
+                    g.m
+                )),
+            "run of {len} windows at ({x}, {y}) leaves the sample"
+        );
+        assert!(
+            at + (len - 1) * s + write_span(layout, g) <= dst.len(),
+            "gather buffer of {} bytes is too short for {len} vectors from byte {at}",
+            dst.len()
+        );
+        let (fr, pr) = (g.radius(), g.parent_radius());
+        let out = dst.as_mut_ptr();
+        for i in 0..len {
+            let (xx, d) = (x + i, at + i * s);
+            // SAFETY: the window of (xx, y) is inside the plane (asserted for
+            // the whole run) and the plane has PIECE bytes of slack, so every
+            // piece read of a row starts before the row's end and stays
+            // inside `pixels`. Every write lies in d..d + write_span, inside
+            // `dst` (asserted above).
+            unsafe {
+                let f = &self.fine;
+                let src = f.pixels.as_ptr().add((y - fr) * f.width + xx - fr);
+                copy_window(src, f.width, g.n, out.add(d));
+                zero(out.add(d + layout.hi_len), layout.hi_pad - layout.hi_len);
+                if let Some(p) = &self.parent {
+                    let src = p.pixels.as_ptr().add((y / 2 - pr) * p.width + xx / 2 - pr);
+                    copy_window(src, p.width, g.m, out.add(d + layout.hi_pad));
+                }
+                zero(
+                    out.add(d + layout.hi_pad + layout.lo_len),
+                    layout.lo_pad - layout.lo_len,
+                );
+            }
+        }
+    }
+
+    fn bytes(&self) -> u64 {
+        (self.fine.pixels.capacity() + self.parent.as_ref().map_or(0, |p| p.pixels.capacity()))
+            as u64
+    }
+}
+
+#[derive(Debug, Clone)]
+enum Data {
+    Dense(AlignedBytes),
+    Planes(PlaneSource),
+}
+
 /// Padded reference vectors of one contiguous range of global indices.
 #[derive(Debug, Clone)]
 pub struct VectorSpace {
     layout: Layout,
     start: u64,
     len: usize,
-    data: AlignedBytes,
-    positions: Vec<[u32; 2]>,
+    data: Data,
+    /// The level's positions (all of them; the space holds `start..start + len`).
+    positions: Positions,
 }
 
 impl VectorSpace {
-    /// Builds the vectors of global indices `range` of the level (ARCHITECTURE §3.3):
-    /// a worker builds only the part it owns.
+    /// Builds the dense vectors of global indices `range` of the level
+    /// (ARCHITECTURE §3.3): a worker builds only the part it owns.
     pub fn build(
         sample: &Sample,
         geometry: &Geometry,
@@ -57,8 +299,20 @@ impl VectorSpace {
     pub fn build_from_positions(
         sample: &Sample,
         geometry: &Geometry,
-        all: &[[u32; 2]],
+        all: &Positions,
         range: std::ops::Range<u64>,
+    ) -> Result<Self> {
+        Self::build_with(sample, geometry, all, range, Storage::Dense)
+    }
+
+    /// The vectors of global indices `range` held as `storage` says
+    /// ([`Storage::Auto`] asks the machine how much memory is left).
+    pub fn build_with(
+        sample: &Sample,
+        geometry: &Geometry,
+        all: &Positions,
+        range: std::ops::Range<u64>,
+        storage: Storage,
     ) -> Result<Self> {
         let total = all.len() as u64;
         if range.start > range.end || range.end > total {
@@ -69,24 +323,41 @@ impl VectorSpace {
                 space_end: total,
             });
         }
-        let layout = geometry.layout();
-        let positions = all[range.start as usize..range.end as usize].to_vec();
-        let stride = layout.stride();
-        let mut data = AlignedBytes::zeroed(positions.len() * stride + SLACK);
-        let mut tmp = vec![0u8; layout.dims()];
-        for (p, slot) in positions
-            .iter()
-            .zip(data.as_mut_slice().chunks_exact_mut(stride))
-        {
-            gather(sample, geometry, p[0] as usize, p[1] as usize, &mut tmp);
-            layout.scatter(&tmp, slot);
+        if geometry.m > 0 && sample.parent.is_none() {
+            return Err(EngineError::Geometry(
+                "the geometry has a parent window but no parent plane was given".into(),
+            ));
         }
+        let layout = geometry.layout();
+        let len = (range.end - range.start) as usize;
+        let source = PlaneSource {
+            geometry: *geometry,
+            fine: PaddedPlane::of(&sample.fine),
+            parent: sample
+                .parent
+                .as_ref()
+                .filter(|_| geometry.m > 0)
+                .map(PaddedPlane::of),
+        };
+        let dense_bytes = len as u64 * layout.stride() as u64;
+        let storage = match storage {
+            Storage::Auto => storage.resolve(dense_bytes, crate::budget::available_bytes()),
+            s => s,
+        };
+        let data = match storage {
+            Storage::Planes => Data::Planes(source),
+            _ => {
+                let mut data = AlignedBytes::zeroed(len * layout.stride() + SLACK);
+                gather_range(&source, &layout, all, range.clone(), data.as_mut_slice());
+                Data::Dense(data)
+            }
+        };
         Ok(Self {
             layout,
             start: range.start,
-            len: positions.len(),
+            len,
             data,
-            positions,
+            positions: all.clone(),
         })
     }
 
@@ -114,13 +385,21 @@ impl VectorSpace {
             layout,
             start,
             len,
-            data,
-            positions: Vec::new(),
+            data: Data::Dense(data),
+            positions: Positions::new(),
         })
     }
 
     pub fn layout(&self) -> Layout {
         self.layout
+    }
+
+    /// How the vectors are held: [`Storage::Dense`] or [`Storage::Planes`].
+    pub fn storage(&self) -> Storage {
+        match self.data {
+            Data::Dense(_) => Storage::Dense,
+            Data::Planes(_) => Storage::Planes,
+        }
     }
 
     /// First global index held.
@@ -159,28 +438,97 @@ impl VectorSpace {
 
     /// Sample position of a global index held here (None for raw spaces).
     pub fn position(&self, index: u64) -> Option<[u32; 2]> {
-        let i = index.checked_sub(self.start)? as usize;
-        self.positions.get(i).copied()
+        (self.start..self.end())
+            .contains(&index)
+            .then(|| self.positions.get(index))
+            .flatten()
     }
 
-    /// Padded bytes of the vector with this global index.
-    pub fn vector(&self, index: u64) -> Option<&[u8]> {
+    /// Padded bytes of the vector with this global index (gathered from the
+    /// planes for a plane-backed space).
+    pub fn vector(&self, index: u64) -> Option<Cow<'_, [u8]>> {
         let i = index.checked_sub(self.start)? as usize;
+        if i >= self.len {
+            return None;
+        }
         let s = self.layout.stride();
-        (i < self.len).then(|| &self.data.as_slice()[i * s..(i + 1) * s])
+        match &self.data {
+            Data::Dense(d) => Some(Cow::Borrowed(&d.as_slice()[i * s..(i + 1) * s])),
+            Data::Planes(src) => {
+                let [x, y] = self.positions.get(index)?;
+                let mut v = vec![0u8; write_span(&self.layout, &src.geometry)];
+                src.gather_run(&self.layout, x as usize, y as usize, 1, &mut v, 0);
+                v.truncate(s);
+                Some(Cow::Owned(v))
+            }
+        }
     }
 
-    /// Bytes of vector data (without slack).
+    /// Bytes of vector data (without slack) if every vector were built.
     pub fn bytes(&self) -> usize {
         self.len * self.layout.stride()
     }
 
+    /// Bytes this space holds: the vectors, or the planes and positions.
+    pub fn held_bytes(&self) -> u64 {
+        match &self.data {
+            Data::Dense(_) => (self.bytes() + SLACK) as u64 + self.positions.bytes(),
+            Data::Planes(src) => src.bytes() + self.positions.bytes(),
+        }
+    }
+
     /// Padded data of the global index range `range` plus the trailing slack
-    /// the kernels may read.
-    pub(crate) fn slice(&self, range: std::ops::Range<u64>) -> &[u8] {
+    /// the kernels may read, when the vectors are held densely.
+    pub(crate) fn dense_slice(&self, range: Range<u64>) -> Option<&[u8]> {
+        let Data::Dense(d) = &self.data else {
+            return None;
+        };
         let s = self.layout.stride();
         let a = (range.start - self.start) as usize * s;
         let b = (range.end - self.start) as usize * s;
-        &self.data.as_slice()[a..b + SLACK]
+        Some(&d.as_slice()[a..b + SLACK])
+    }
+
+    /// Hands `f` the padded vectors of `range` in index order, with [`SLACK`]
+    /// bytes after them: `(bytes, count, first global index)`. A dense space
+    /// makes one call; a plane-backed one gathers blocks of [`BLOCK`] vectors
+    /// into one buffer and makes a call per block.
+    pub(crate) fn for_each_block(&self, range: Range<u64>, mut f: impl FnMut(&[u8], usize, u64)) {
+        match &self.data {
+            Data::Dense(_) => {
+                let n = (range.end - range.start) as usize;
+                if let Some(d) = self.dense_slice(range.clone()) {
+                    f(d, n, range.start);
+                }
+            }
+            Data::Planes(src) => {
+                let s = self.layout.stride();
+                let mut buf = AlignedBytes::zeroed(BLOCK * s + SLACK);
+                let mut a = range.start;
+                while a < range.end {
+                    let b = (a + BLOCK as u64).min(range.end);
+                    gather_range(src, &self.layout, &self.positions, a..b, buf.as_mut_slice());
+                    f(buf.as_slice(), (b - a) as usize, a);
+                    a = b;
+                }
+            }
+        }
+    }
+}
+
+/// Gathers the padded vectors of global indices `range` into `dst`, one after
+/// another from its start (`dst` holds them and [`SLACK`] more bytes).
+fn gather_range(
+    src: &PlaneSource,
+    layout: &Layout,
+    positions: &Positions,
+    range: Range<u64>,
+    dst: &mut [u8],
+) {
+    let s = layout.stride();
+    let mut at = 0;
+    for (_, x, y, len) in positions.runs(range) {
+        src.gather_run(layout, x as usize, y as usize, len as usize, dst, at);
+        at += len as usize * s;
     }
 }

@@ -90,7 +90,7 @@ fn reference_matrix(c: &Case) -> Vec<u64> {
             out[q * n + i] = distance(
                 &c.layout(),
                 &c.params,
-                space.vector(i as u64).unwrap(),
+                &space.vector(i as u64).unwrap(),
                 batch.values(q),
                 batch.mask(q),
             );
@@ -356,7 +356,7 @@ fn built_vectors_hold_the_window_and_parent_pixels() {
     let l = g.layout();
     for (i, p) in all.iter().enumerate() {
         let (x, y) = (p[0] as usize, p[1] as usize);
-        let v = space.vector(i as u64).unwrap();
+        let v = &space.vector(i as u64).unwrap();
         assert_eq!(v[4], px[y * w + x], "centre pixel");
         assert_eq!(v[0], px[(y - 1) * w + x - 1]);
         assert_eq!(v[l.hi_pad + 4], ppx[(y / 2) * pw + x / 2], "parent centre");

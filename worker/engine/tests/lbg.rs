@@ -178,7 +178,7 @@ proptest! {
             for (qi, (h, x)) in cb.search(&e, &batch, 1).unwrap().iter().zip(&exact).enumerate() {
                 prop_assert!(h.dist >= x.dist);
                 let v = space.vector(h.index).unwrap();
-                prop_assert_eq!(h.dist, distance(&layout, &c.params, v, batch.values(qi), batch.mask(qi)));
+                prop_assert_eq!(h.dist, distance(&layout, &c.params, &v, batch.values(qi), batch.mask(qi)));
             }
         }
     }

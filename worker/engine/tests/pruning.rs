@@ -19,7 +19,7 @@ fn brute(space: &VectorSpace, batch: &QueryBatch, params: &Params) -> Vec<Hit> {
                     dist: distance(
                         &space.layout(),
                         params,
-                        space.vector(i).unwrap(),
+                        &space.vector(i).unwrap(),
                         batch.values(q),
                         batch.mask(q),
                     ),
@@ -43,7 +43,7 @@ fn hint(batch: &mut QueryBatch, space: &VectorSpace, params: &Params, picks: &[(
             let dist = distance(
                 &space.layout(),
                 params,
-                space.vector(index).unwrap(),
+                &space.vector(index).unwrap(),
                 batch.values(q),
                 batch.mask(q),
             );
@@ -177,7 +177,7 @@ fn pruned_search_equals_brute_force_on_a_real_level() {
         let mut raw = Vec::new();
         for q in 0..24u64 {
             raw.clear();
-            layout.unpad_into(space.vector((q * 977 + 11) % n).unwrap(), &mut raw);
+            layout.unpad_into(&space.vector((q * 977 + 11) % n).unwrap(), &mut raw);
             let mask: Vec<u8> = (0..layout.dims())
                 .map(|i| {
                     let (x, y) = (i % 11, i / 11);

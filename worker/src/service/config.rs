@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 
-use texsyn_engine::Kernel;
+use texsyn_engine::{Kernel, Storage};
 
 /// Default listen address: loopback only, so a worker is never exposed by accident.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:7878";
@@ -67,6 +67,8 @@ pub struct WorkerConfig {
     /// Free a job this long after its last call; None = never.
     pub idle_timeout: Option<Duration>,
     pub kernel: Kernel,
+    /// How assigned ranges hold their vectors.
+    pub storage: Storage,
 }
 
 impl Default for WorkerConfig {
@@ -80,6 +82,7 @@ impl Default for WorkerConfig {
             max_message: DEFAULT_MAX_MESSAGE,
             idle_timeout: Some(DEFAULT_IDLE_TIMEOUT),
             kernel: Kernel::detect(),
+            storage: Storage::Auto,
         }
     }
 }
@@ -95,6 +98,7 @@ impl std::fmt::Debug for WorkerConfig {
             .field("max_message", &self.max_message)
             .field("idle_timeout", &self.idle_timeout)
             .field("kernel", &self.kernel)
+            .field("storage", &self.storage)
             .finish()
     }
 }

@@ -8,7 +8,7 @@ use texsyn_engine::calibrate::{calibrate, CalibrationSize};
 use texsyn_engine::layout::SLACK;
 use texsyn_engine::lbg::{check_probes, default_seeds, range_seed};
 use texsyn_engine::{
-    Codebook, Engine, Hit, LbgConfig, OwnedLevel, PruneStats, QueryBatch, VectorSpace,
+    Codebook, Engine, Hit, LbgConfig, OwnedLevel, PruneStats, QueryBatch, Storage, VectorSpace,
 };
 use texsyn_proto::v1 as proto;
 use texsyn_proto::v1::worker_server::Worker;
@@ -170,15 +170,22 @@ impl Worker for WorkerService {
         if probes > 0 && count > 0 {
             check_probes(probes, default_seeds(count as usize)).map_err(engine_status)?;
         }
-        let per_vector =
-            (level.geometry.layout().stride() + std::mem::size_of::<[u32; 2]>()) as u64;
-        let need = count
-            .checked_mul(per_vector)
+        let dense = count
+            .checked_mul(level.geometry.layout().stride() as u64)
             .and_then(|b| b.checked_add(SLACK as u64))
-            // Training holds the vectors twice (the space and the partition copies).
-            .and_then(|b| b.checked_mul(if probes > 0 { 2 } else { 1 }))
             .unwrap_or(u64::MAX);
         let max = self.shared.max_memory;
+        let room = max.saturating_sub(level.bytes());
+        // LBG trains on dense vectors and holds them twice (the space and the
+        // partition copies); exact search may gather them from the planes.
+        let (storage, need) = if probes > 0 {
+            (Storage::Dense, dense.saturating_mul(2))
+        } else {
+            match self.shared.storage.resolve(dense, Some(room)) {
+                Storage::Dense => (Storage::Dense, dense),
+                _ => (Storage::Planes, level.plane_bytes()),
+            }
+        };
         if need.saturating_add(level.bytes()) > max {
             return Err(exhausted(format!(
                 "range {}..{} needs {need} bytes of vectors which, with the level's {} bytes, exceeds --max-memory {max}; assign a smaller range",
@@ -192,7 +199,7 @@ impl Worker for WorkerService {
         let engine = self.shared.engine;
         let (space, lbg) = self
             .shared
-            .run(move || build_range(&engine, &lv, start..end, probes))
+            .run(move || build_range(&engine, &lv, start..end, probes, storage))
             .await?
             .map_err(engine_status)?;
         let build_seconds = t.elapsed().as_secs_f64();
@@ -200,9 +207,8 @@ impl Worker for WorkerService {
             Some((cb, _)) => cb.range().end - cb.range().start,
             None => space.len() as u64,
         };
-        let bytes = (space.bytes() + SLACK) as u64
-            + vectors * std::mem::size_of::<[u32; 2]>() as u64
-            + lbg.as_ref().map_or(0, |(cb, _)| cb.bytes() as u64);
+        let held = space.storage().name();
+        let bytes = space.held_bytes() + lbg.as_ref().map_or(0, |(cb, _)| cb.bytes() as u64);
         self.shared.install_assignment(
             &r.job_id,
             Arc::new(Assigned {
@@ -220,6 +226,7 @@ impl Worker for WorkerService {
             end,
             epoch = r.epoch,
             bytes,
+            storage = held,
             build_seconds,
             "range assigned"
         );
@@ -395,12 +402,14 @@ fn build_range(
     lv: &OwnedLevel,
     range: Range<u64>,
     probes: usize,
+    storage: Storage,
 ) -> texsyn_engine::Result<(VectorSpace, Option<(Codebook, usize)>)> {
-    let space = VectorSpace::build_from_positions(
+    let space = VectorSpace::build_with(
         &lv.sample(),
         &lv.geometry,
         &lv.positions,
         range.clone(),
+        storage,
     )?;
     if probes == 0 || space.is_empty() {
         return Ok((space, None));

@@ -49,6 +49,8 @@ pub(crate) struct Shared {
     pub pool: Arc<rayon::ThreadPool>,
     pub threads: usize,
     pub max_memory: u64,
+    /// How assigned ranges hold their vectors.
+    pub storage: texsyn_engine::Storage,
     pub max_message: usize,
     /// Turns true when the server shuts down; search streams end on it.
     pub stop: tokio::sync::watch::Receiver<bool>,
@@ -72,6 +74,7 @@ impl Shared {
             pool: Arc::new(pool),
             threads: config.threads,
             max_memory: config.max_memory,
+            storage: config.storage,
             max_message: config.max_message,
             stop,
             jobs: Mutex::new(HashMap::new()),

@@ -385,7 +385,11 @@ impl Codebook {
         let layout = space.layout();
         let full = Trainer {
             engine,
-            data: space.slice(range.clone()),
+            data: space.dense_slice(range.clone()).ok_or_else(|| {
+                EngineError::Parameter(
+                    "LBG trains on dense vectors; build the space with Storage::Dense".into(),
+                )
+            })?,
             n,
             layout,
             params: *params,
@@ -483,7 +487,7 @@ impl Codebook {
             .zip(row_index.par_iter())
             .for_each(|(slot, &g)| {
                 if g != u64::MAX {
-                    slot.copy_from_slice(space.vector(g).expect("member inside the range"));
+                    slot.copy_from_slice(&space.vector(g).expect("member inside the range"));
                 }
             });
         stats.seeds = kk;
