@@ -146,9 +146,25 @@ fn bad_input_fails_cleanly() {
             "300x300",
             "--max-memory",
             "1",
+            "--vector-store",
+            "dense",
         ],
         &out,
         &["reference vectors need", "--local-workers", "--search auto"],
+    );
+    fails(
+        &[
+            "synth",
+            sm,
+            "-o",
+            o,
+            "--size",
+            "64x64",
+            "--vector-store",
+            "disk",
+        ],
+        &out,
+        &["vector storage 'disk'", "planes"],
     );
     fails(
         &["extend", s(&not_image), "-o", o, "--size", "200x200"],
@@ -289,4 +305,39 @@ fn help_shows_examples() {
     assert!(o.status.success());
     assert!(text.contains("texsyn extend sample.png -o out.png --size 1024x1024"));
     assert!(text.contains("texsyn fill photo.png --mask holes.png"));
+}
+
+/// Vectors gathered from the planes give the image of dense vectors, and a
+/// memory cap the dense vectors would break switches `auto` to the planes
+/// instead of failing.
+#[test]
+fn vector_stores_give_the_same_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let sample = assets().join("gravel_gray_500.png");
+    let run = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let mut args = vec![
+            "synth",
+            s(&sample),
+            "-o",
+            s(&out),
+            "--size",
+            "160x160",
+            "--seed",
+            "5",
+            "-q",
+        ];
+        args.extend_from_slice(extra);
+        let o = texsyn(&args);
+        assert!(
+            o.status.success(),
+            "{extra:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        std::fs::read(&out).unwrap()
+    };
+    let dense = run("dense.png", &["--vector-store", "dense"]);
+    assert_eq!(dense, run("planes.png", &["--vector-store", "planes"]));
+    // 500² × 192 B of dense vectors is over 10 MB; the planes are 0.3 MB.
+    assert_eq!(dense, run("auto.png", &["--max-memory", "10"]));
 }

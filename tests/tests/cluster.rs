@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use harness::{
-    planned, sample, sigcont, sigkill, sigstop, synth, texture_path, Token, Worker, LEVELS,
+    alive, planned, sample, sigcont, sigkill, sigstop, synth, texture_path, Token, Worker, LEVELS,
 };
 use serde_json::Value;
 use texsyn::cluster::{ClusterOptions, ClusterSearch, WorkerSpec};
@@ -246,6 +246,33 @@ fn master_share_matches_the_local_engine() {
     let shares = p["shares"].as_array().unwrap();
     assert_eq!(shares.len(), 2, "{p:#}");
     assert_eq!(shares[1]["worker"], "master");
+}
+
+/// Workers that gather their ranges' vectors from the planes (as they do for
+/// samples too large to hold densely) answer exactly like dense ones.
+#[test]
+fn plane_backed_workers_match_the_local_engine() {
+    let token = Token::new();
+    let path = token.path.to_str().unwrap().to_string();
+    let args = [
+        "--threads",
+        "1",
+        "--token-file",
+        &path,
+        "--vector-store",
+        "planes",
+    ];
+    let workers: Vec<Worker> = [23, 24]
+        .into_iter()
+        .map(|h| Worker::start(h, &args))
+        .collect();
+    let specs = workers.iter().map(|w| w.spec(Some(&token))).collect();
+    let out = run(Box::new(connect(options(specs)))).unwrap();
+    assert_same_as_local(&out, "plane-backed workers");
+    assert_pruning_reported(&out, "plane-backed workers");
+    for w in &workers {
+        assert!(alive(w.pid()), "worker {} exited", w.address);
+    }
 }
 
 #[test]

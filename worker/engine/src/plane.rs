@@ -58,8 +58,10 @@ impl<'a> Plane<'a> {
         self.defined.is_none_or(|d| d[i] != 0)
     }
 
-    /// Summed-area table of *undefined* pixels, (w+1)×(h+1).
-    fn undefined_sat(&self) -> Vec<u32> {
+    /// Summed-area table of *undefined* pixels, (w+1)×(h+1); `None` when every
+    /// pixel is defined (no mask), which spares 4 bytes per pixel.
+    fn undefined_sat(&self) -> Option<Vec<u32>> {
+        self.defined?;
         let (w, h) = (self.width, self.height);
         let mut sat = vec![0u32; (w + 1) * (h + 1)];
         for y in 0..h {
@@ -69,7 +71,7 @@ impl<'a> Plane<'a> {
                 sat[(y + 1) * (w + 1) + x + 1] = sat[y * (w + 1) + x + 1] + row;
             }
         }
-        sat
+        Some(sat)
     }
 }
 
@@ -118,7 +120,7 @@ pub struct Sample<'a> {
 }
 
 fn window_clear(
-    sat: &[u32],
+    sat: Option<&[u32]>,
     w: usize,
     cx: usize,
     cy: usize,
@@ -129,6 +131,9 @@ fn window_clear(
     if cx < r || cy < r || cx + r >= pw || cy + r >= ph {
         return false;
     }
+    let Some(sat) = sat else {
+        return true;
+    };
     let (x0, y0, x1, y1) = (cx - r, cy - r, cx + r + 1, cy + r + 1);
     let s = sat[y1 * (w + 1) + x1] + sat[y0 * (w + 1) + x0]
         - sat[y0 * (w + 1) + x1]
@@ -159,11 +164,11 @@ pub fn reference_positions(sample: &Sample, geometry: &Geometry) -> Result<Posit
     let mut out = Positions::new();
     for y in 0..f.height {
         for x in 0..f.width {
-            if !window_clear(&sat, f.width, x, y, r, f.width, f.height) {
+            if !window_clear(sat.as_deref(), f.width, x, y, r, f.width, f.height) {
                 continue;
             }
             if let Some((p, ps)) = &psat {
-                if !window_clear(ps, p.width, x / 2, y / 2, pr, p.width, p.height) {
+                if !window_clear(ps.as_deref(), p.width, x / 2, y / 2, pr, p.width, p.height) {
                     continue;
                 }
             }
