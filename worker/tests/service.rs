@@ -655,8 +655,10 @@ async fn malformed_searches(c: &mut Client, q: &(Vec<u8>, Vec<u8>)) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn memory_limit_is_resource_exhausted() {
+    // Dense vectors only: a range over --max-memory is refused.
     let (w, mut c) = start(WorkerConfig {
         max_memory: 1 << 20,
+        storage: texsyn_engine::Storage::Dense,
         ..config()
     })
     .await;
@@ -677,6 +679,27 @@ async fn memory_limit_is_resource_exhausted() {
         .unwrap()
         .into_inner();
     assert_eq!(r.vectors, 1000);
+    w.shutdown().await;
+
+    // Auto: the same range is held as planes (a few KB) instead of refused.
+    let (w, mut c) = start(WorkerConfig {
+        max_memory: 1 << 20,
+        ..config()
+    })
+    .await;
+    let total = c
+        .load_level(level.load("j", 0))
+        .await
+        .unwrap()
+        .into_inner()
+        .total_vectors;
+    let r = c
+        .assign(assign("j", 0, 0, total))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(r.vectors, total);
+    assert!(r.bytes < 1 << 20, "planes take {} bytes", r.bytes);
     w.shutdown().await;
 }
 
