@@ -210,6 +210,16 @@ async fn search(
     Ok(out)
 }
 
+/// Loads `level` as level 0 of job `job`; its number of reference vectors.
+async fn load(client: &mut Client, level: &Level, job: &str) -> u64 {
+    client
+        .load_level(level.load(job, 0))
+        .await
+        .unwrap()
+        .into_inner()
+        .total_vectors
+}
+
 fn code<T: std::fmt::Debug>(r: Result<T, Status>) -> Code {
     r.expect_err("the call must fail").code()
 }
@@ -663,12 +673,7 @@ async fn memory_limit_is_resource_exhausted() {
     })
     .await;
     let level = Level::new(9, 200);
-    let total = c
-        .load_level(level.load("j", 0))
-        .await
-        .unwrap()
-        .into_inner()
-        .total_vectors;
+    let total = load(&mut c, &level, "j").await;
     assert_eq!(
         code(c.assign(assign("j", 0, 0, total)).await),
         Code::ResourceExhausted
@@ -687,12 +692,7 @@ async fn memory_limit_is_resource_exhausted() {
         ..config()
     })
     .await;
-    let total = c
-        .load_level(level.load("j", 0))
-        .await
-        .unwrap()
-        .into_inner()
-        .total_vectors;
+    let total = load(&mut c, &level, "j").await;
     let r = c
         .assign(assign("j", 0, 0, total))
         .await

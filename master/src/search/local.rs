@@ -58,13 +58,11 @@ impl LocalSearch {
         };
         let (storage, need) = match level.colour_vectors {
             Some((layout, _)) => (Storage::Dense, n * layout.stride() as u64),
-            None => {
-                let dense = n * level.geometry.layout().stride() as u64;
-                match self.storage.resolve(dense, limit) {
-                    Storage::Dense => (Storage::Dense, dense),
-                    _ => (Storage::Planes, plane_bytes(level)),
-                }
-            }
+            None => self.storage.plan(
+                n * level.geometry.layout().stride() as u64,
+                level.sample.plane_bytes(),
+                limit,
+            ),
         };
         if let Some(limit) = limit {
             if need > limit {
@@ -80,17 +78,6 @@ impl LocalSearch {
         }
         Ok(storage)
     }
-}
-
-/// Bytes a plane-backed space of the level holds: its planes.
-fn plane_bytes(level: &LevelData) -> u64 {
-    let p = |w: usize, h: usize| (w * h) as u64;
-    p(level.sample.fine.width, level.sample.fine.height)
-        + level
-            .sample
-            .parent
-            .as_ref()
-            .map_or(0, |q| p(q.width, q.height))
 }
 
 impl SearchBackend for LocalSearch {

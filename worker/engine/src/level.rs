@@ -96,7 +96,7 @@ impl OwnedLevel {
 
     /// Bytes of the planes (what a plane-backed space of the level copies).
     pub fn plane_bytes(&self) -> u64 {
-        (self.fine.pixels.len() + self.parent.as_ref().map_or(0, |p| p.pixels.len())) as u64
+        self.sample().plane_bytes()
     }
 
     /// Bytes held: planes and positions.

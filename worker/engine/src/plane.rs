@@ -119,6 +119,14 @@ pub struct Sample<'a> {
     pub parent: Option<Plane<'a>>,
 }
 
+impl Sample<'_> {
+    /// Bytes of the planes' pixels (what a plane-backed space copies).
+    pub fn plane_bytes(&self) -> u64 {
+        let p = |q: &Plane| (q.width * q.height) as u64;
+        p(&self.fine) + self.parent.as_ref().map_or(0, p)
+    }
+}
+
 fn window_clear(
     sat: Option<&[u32]>,
     w: usize,

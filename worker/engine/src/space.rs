@@ -87,6 +87,17 @@ impl Storage {
         }
     }
 
+    /// The storage to use and the bytes it needs, for a range whose vectors
+    /// take `dense` bytes built and whose planes take `planes` bytes, when
+    /// `room` bytes are left (`None`: unknown). The one rule the master's
+    /// local search and the worker both apply before building a range.
+    pub fn plan(self, dense: u64, planes: u64, room: Option<u64>) -> (Self, u64) {
+        match self.resolve(dense, room) {
+            Self::Dense => (Self::Dense, dense),
+            _ => (Self::Planes, planes),
+        }
+    }
+
     /// The storage for `vector_bytes` of dense vectors when `room` bytes are
     /// left on this machine (`None`: unknown).
     pub fn resolve(self, vector_bytes: u64, room: Option<u64>) -> Self {

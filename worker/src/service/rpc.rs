@@ -181,10 +181,9 @@ impl Worker for WorkerService {
         let (storage, need) = if probes > 0 {
             (Storage::Dense, dense.saturating_mul(2))
         } else {
-            match self.shared.storage.resolve(dense, Some(room)) {
-                Storage::Dense => (Storage::Dense, dense),
-                _ => (Storage::Planes, level.plane_bytes()),
-            }
+            self.shared
+                .storage
+                .plan(dense, level.plane_bytes(), Some(room))
         };
         if need.saturating_add(level.bytes()) > max {
             return Err(exhausted(format!(
