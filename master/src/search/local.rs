@@ -59,7 +59,7 @@ impl LocalSearch {
         let (storage, need) = match level.colour_vectors {
             Some((layout, _)) => (Storage::Dense, n * layout.stride() as u64),
             None => self.storage.plan(
-                n * level.geometry.layout().stride() as u64,
+                n * level.geometry.layout().dense_bytes_per_vector() as u64,
                 level.sample.plane_bytes(),
                 limit,
             ),

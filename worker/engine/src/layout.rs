@@ -163,6 +163,18 @@ impl Layout {
         self.hi_pad + self.lo_pad
     }
 
+    /// Bytes a dense space holds per vector for exact search: the padded
+    /// vector and, when there is a lo part, its entry in the key index (key,
+    /// index and a head of up to two lanes; ARCHITECTURE §3.5).
+    pub fn dense_bytes_per_vector(&self) -> usize {
+        let index = if self.lo_len > 0 {
+            8 + self.lo_pad.min(2 * LANE)
+        } else {
+            0
+        };
+        self.stride() + index
+    }
+
     /// Components per unpadded vector (hi then lo).
     pub fn dims(&self) -> usize {
         self.hi_len + self.lo_len

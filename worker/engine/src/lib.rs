@@ -19,6 +19,7 @@ pub mod plane;
 pub mod positions;
 pub mod search;
 pub mod space;
+mod window;
 
 pub use batch::QueryBatch;
 pub use calibrate::{calibrate, Calibration, CalibrationSize};

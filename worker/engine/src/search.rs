@@ -12,6 +12,7 @@
 //! distance exceeds the best so far. Only vectors that cannot win are skipped,
 //! so the answer is the exhaustive one.
 
+use std::borrow::Cow;
 use std::ops::Range;
 
 use rayon::prelude::*;
@@ -21,6 +22,7 @@ use crate::error::{EngineError, Result};
 use crate::kernel::{distance, Kernel, Params, PruneStats, Scan, Sink};
 use crate::merge::{merge_best, merge_topk, Hit};
 use crate::space::VectorSpace;
+use crate::window::{KeyIndex, Sweep};
 
 /// Per query the best (distance, index) so far, started from the query's
 /// bound. Comparisons are on the pair, so a vector that ties the bound with a
@@ -266,26 +268,66 @@ impl Engine {
     ) -> Result<(Vec<Hit>, PruneStats)> {
         self.check(space, &range, queries)?;
         let start = self.start_from_candidates(space, &range, queries, params);
-        let parts: Vec<(Vec<Hit>, PruneStats)> = self
-            .chunks(&range)
-            .into_par_iter()
-            .map(|r| {
-                let mut sink = BestSink::from(&start, self.prune);
-                self.scan(space, r, queries, params, &mut sink);
-                let hits = sink
-                    .dist
-                    .iter()
-                    .zip(&sink.index)
-                    .map(|(&dist, &index)| Hit { index, dist })
-                    .collect();
-                (hits, sink.stats)
-            })
-            .collect();
-        let mut best = start;
+        let layout = space.layout();
+        let keyed = if self.prune { space.key_index() } else { None };
+        let (windowed, scanned): (Vec<usize>, Vec<usize>) = (0..queries.len())
+            .partition(|&q| keyed.is_some() && KeyIndex::applies(&layout, params, queries.mask(q)));
+        let mut best = start.clone();
         let mut stats = PruneStats::default();
-        for (p, s) in &parts {
-            merge_best(&mut best, p);
-            stats.add(s);
+        if let (Some(index), false) = (keyed, windowed.is_empty()) {
+            let data = space
+                .dense_slice(space.start()..space.end())
+                .expect("a space with a key index is dense");
+            let sweep = Sweep {
+                kernel: self.kernel,
+                layout,
+                params: *params,
+                data,
+                base: space.start(),
+                range: range.clone(),
+                min_part: self.min_chunk,
+            };
+            let qs: Vec<(&[u8], &[u8])> = windowed
+                .iter()
+                .map(|&q| (queries.values(q), queries.mask(q)))
+                .collect();
+            let from: Vec<Hit> = windowed.iter().map(|&q| start[q]).collect();
+            let (found, s) = index.search(&sweep, &qs, &from);
+            for (&q, hit) in windowed.iter().zip(found) {
+                best[q] = hit;
+            }
+            stats.add(&s);
+        }
+        if !scanned.is_empty() {
+            let sub = if windowed.is_empty() {
+                Cow::Borrowed(queries)
+            } else {
+                Cow::Owned(queries.select(scanned.iter().copied()))
+            };
+            let sub_start: Vec<Hit> = scanned.iter().map(|&q| start[q]).collect();
+            let parts: Vec<(Vec<Hit>, PruneStats)> = self
+                .chunks(&range)
+                .into_par_iter()
+                .map(|r| {
+                    let mut sink = BestSink::from(&sub_start, self.prune);
+                    self.scan(space, r, &sub, params, &mut sink);
+                    let hits = sink
+                        .dist
+                        .iter()
+                        .zip(&sink.index)
+                        .map(|(&dist, &index)| Hit { index, dist })
+                        .collect();
+                    (hits, sink.stats)
+                })
+                .collect();
+            let mut sub_best = sub_start;
+            for (p, s) in &parts {
+                merge_best(&mut sub_best, p);
+                stats.add(s);
+            }
+            for (&q, h) in scanned.iter().zip(sub_best) {
+                best[q] = h;
+            }
         }
         for (q, b) in best.iter_mut().enumerate() {
             if *b == queries.bound(q) {

@@ -10,11 +10,13 @@
 
 use std::borrow::Cow;
 use std::ops::Range;
+use std::sync::OnceLock;
 
 use crate::error::{EngineError, Result};
 use crate::layout::{Geometry, Layout, SLACK};
 use crate::plane::{reference_positions, Plane, Sample};
 use crate::positions::Positions;
+use crate::window::KeyIndex;
 
 /// A zeroed byte buffer whose start is 64-byte aligned, so that a 64-byte SIMD
 /// load of a vector at a multiple-of-64 offset never splits a cache line.
@@ -292,6 +294,9 @@ pub struct VectorSpace {
     data: Data,
     /// The level's positions (all of them; the space holds `start..start + len`).
     positions: Positions,
+    /// The vectors in key order, built on the first windowed search of a
+    /// dense space (ARCHITECTURE §3.5).
+    keys: OnceLock<Option<KeyIndex>>,
 }
 
 impl VectorSpace {
@@ -350,7 +355,7 @@ impl VectorSpace {
                 .filter(|_| geometry.m > 0)
                 .map(PaddedPlane::of),
         };
-        let dense_bytes = len as u64 * layout.stride() as u64;
+        let dense_bytes = len as u64 * layout.dense_bytes_per_vector() as u64;
         let storage = match storage {
             Storage::Auto => storage.resolve(dense_bytes, crate::budget::available_bytes()),
             s => s,
@@ -369,6 +374,7 @@ impl VectorSpace {
             len,
             data,
             positions: all.clone(),
+            keys: OnceLock::new(),
         })
     }
 
@@ -398,6 +404,7 @@ impl VectorSpace {
             len,
             data: Data::Dense(data),
             positions: Positions::new(),
+            keys: OnceLock::new(),
         })
     }
 
@@ -480,12 +487,29 @@ impl VectorSpace {
         self.len * self.layout.stride()
     }
 
-    /// Bytes this space holds: the vectors, or the planes and positions.
+    /// Bytes this space holds: the vectors, or the planes and positions, and
+    /// the key index once a search has built it.
     pub fn held_bytes(&self) -> u64 {
-        match &self.data {
+        let keys = self
+            .keys
+            .get()
+            .and_then(Option::as_ref)
+            .map_or(0, KeyIndex::bytes);
+        keys + match &self.data {
             Data::Dense(_) => (self.bytes() + SLACK) as u64 + self.positions.bytes(),
             Data::Planes(src) => src.bytes() + self.positions.bytes(),
         }
+    }
+
+    /// The vectors in key order for windowed search, built on first use;
+    /// `None` for a plane-backed space or a layout without a lo part.
+    pub(crate) fn key_index(&self) -> Option<&KeyIndex> {
+        let Data::Dense(d) = &self.data else {
+            return None;
+        };
+        self.keys
+            .get_or_init(|| KeyIndex::build(&self.layout, d.as_slice(), self.len))
+            .as_ref()
     }
 
     /// Padded data of the global index range `range` plus the trailing slack

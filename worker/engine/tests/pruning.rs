@@ -110,6 +110,7 @@ proptest! {
         (whi, wlo) in (1u32..5, 0u32..5),
         picks in proptest::collection::vec((any::<u64>(), any::<bool>()), 1..6),
         cuts in proptest::collection::vec(any::<u64>(), 0..4),
+        lo_full in any::<bool>(),
     ) {
         let d = hi + lo;
         let mut x = seed | 1;
@@ -121,7 +122,11 @@ proptest! {
         let mut batch = QueryBatch::new(layout);
         for _ in 0..nq {
             let v: Vec<u8> = (0..d).map(|_| (next() % u64::from(levels)) as u8).collect();
-            let m: Vec<u8> = (0..d).map(|_| u8::from((next() % 1000) as f64 / 1000.0 < density)).collect();
+            // With `lo_full` every lo component is defined, as on every level
+            // below the coarsest: the key-ordered window search takes those.
+            let m: Vec<u8> = (0..d)
+                .map(|i| u8::from((lo_full && i >= hi) || (next() % 1000) as f64 / 1000.0 < density))
+                .collect();
             batch.push(&v, &m).unwrap();
         }
         let expect = brute(&space, &batch, &params);

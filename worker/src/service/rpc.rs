@@ -171,7 +171,7 @@ impl Worker for WorkerService {
             check_probes(probes, default_seeds(count as usize)).map_err(engine_status)?;
         }
         let dense = count
-            .checked_mul(level.geometry.layout().stride() as u64)
+            .checked_mul(level.geometry.layout().dense_bytes_per_vector() as u64)
             .and_then(|b| b.checked_add(SLACK as u64))
             .unwrap_or(u64::MAX);
         let max = self.shared.max_memory;

@@ -282,6 +282,154 @@ impl Kernel {
     }
 }
 
+/// Bytes of a vector's *head* in a layout: the start of its lo part, at most
+/// two lanes, which the key-ordered search tests before anything else
+/// (ARCHITECTURE §3.5).
+/// (Counted in [`Layout::dense_bytes_per_vector`].)
+pub(crate) fn head_bytes(layout: &Layout) -> usize {
+    layout.lo_pad.min(2 * LANE)
+}
+
+impl Kernel {
+    /// Per head (`hb` bytes each, a multiple of [`LANE`], padding 0) its
+    /// `wl`-weighted distance to the query head `qh` over all `hb` bytes, into
+    /// `out[..heads.len() / hb]`. When the query defines every component of
+    /// the head this is the pair's partial distance there, a lower bound of
+    /// its distance.
+    ///
+    /// # Panics
+    /// If `hb` is not a positive multiple of [`LANE`], `heads` is not a whole
+    /// number of heads, `qh` is shorter than a head or `out` than the heads.
+    pub(crate) fn heads(
+        &self,
+        metric: Metric,
+        heads: &[u8],
+        hb: usize,
+        qh: &[u8],
+        wl: u64,
+        out: &mut [u64],
+    ) {
+        assert!(hb > 0 && hb.is_multiple_of(LANE), "head of {hb} bytes");
+        let n = heads.len() / hb;
+        assert!(
+            heads.len() == n * hb && out.len() >= n && qh.len() >= hb,
+            "{} head bytes of {hb} for {} outputs",
+            heads.len(),
+            out.len()
+        );
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 | Kernel::Avx512 => {
+                assert!(x86::has_avx2(), "AVX2 kernel on a CPU without AVX2");
+                // SAFETY: AVX2 is present (asserted); `heads` holds hb·n bytes,
+                // `qh` hb bytes and `out` at least n values (asserted above).
+                unsafe {
+                    x86::heads_avx2(
+                        metric == Metric::L2,
+                        heads.as_ptr(),
+                        hb,
+                        n,
+                        qh.as_ptr(),
+                        wl,
+                        out.as_mut_ptr(),
+                    )
+                }
+            }
+            _ => {
+                for (h, o) in heads.chunks_exact(hb).zip(out.iter_mut()) {
+                    let s: u64 = h
+                        .iter()
+                        .zip(qh)
+                        .map(|(&a, &b)| {
+                            let d = u64::from(a.abs_diff(b));
+                            if metric == Metric::L2 {
+                                d * d
+                            } else {
+                                d
+                            }
+                        })
+                        .sum();
+                    *o = s * wl;
+                }
+            }
+        }
+    }
+
+    /// The distance of one padded vector to one padded query whose head
+    /// (`hb` bytes of lo) scored `partial`: [`distance`] exactly, or some
+    /// partial sum above `bound` once one is (the caller only takes
+    /// distances up to `bound`).
+    ///
+    /// # Panics
+    /// If the layout is not lane-padded, `hb` is not a head of it, or a buffer
+    /// is shorter than the stride.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn finish(
+        &self,
+        layout: &Layout,
+        params: &Params,
+        hb: usize,
+        v: &[u8],
+        q: &[u8],
+        m: &[u8],
+        partial: u64,
+        bound: u64,
+    ) -> u64 {
+        let s = layout.stride();
+        assert!(
+            layout.hi_pad.is_multiple_of(LANE)
+                && layout.lo_pad.is_multiple_of(LANE)
+                && hb.is_multiple_of(LANE)
+                && hb <= layout.lo_pad
+                && v.len() >= s
+                && q.len() >= s
+                && m.len() >= s,
+            "pair of {}/{}/{} bytes, head {hb}, for a {s}-byte layout",
+            v.len(),
+            q.len(),
+            m.len()
+        );
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 | Kernel::Avx512 => {
+                assert!(x86::has_avx2(), "AVX2 kernel on a CPU without AVX2");
+                // SAFETY: AVX2 is present; the parts and the head are whole
+                // lanes, hb ≤ lo_pad and every buffer holds `hi_pad + lo_pad`
+                // bytes (asserted above).
+                unsafe {
+                    x86::finish_avx2(
+                        params.metric == Metric::L2,
+                        (layout.hi_pad, layout.lo_pad, hb),
+                        (u64::from(params.weights.hi), u64::from(params.weights.lo)),
+                        v.as_ptr(),
+                        q.as_ptr(),
+                        m.as_ptr(),
+                        partial,
+                        bound,
+                    )
+                }
+            }
+            _ => distance(layout, params, v, q, m),
+        }
+    }
+}
+
+/// Asks the CPU to bring the cache lines of `bytes` in (a hint: no effect on
+/// results, none on CPUs without it).
+#[inline(always)]
+pub(crate) fn prefetch(bytes: &[u8]) {
+    #[cfg(target_arch = "x86_64")]
+    for line in bytes.chunks(64) {
+        // SAFETY: a prefetch never faults and reads nothing into the program;
+        // the address is inside `bytes` anyway.
+        unsafe {
+            std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                line.as_ptr().cast(),
+            )
+        };
+    }
+}
+
 /// Copies the batch into 64-byte aligned buffers padded to a multiple of `group`
 /// queries with all-masked-out queries: (values, masks, padded count).
 pub(crate) fn padded_queries(q: &QueryBatch, group: usize) -> (AlignedBytes, AlignedBytes, usize) {

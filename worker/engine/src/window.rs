@@ -1,0 +1,272 @@
+//! Key-ordered search windows: a lower-bound cascade computed once per space
+//! (ARCHITECTURE §3.5).
+//!
+//! Every vector gets a key, the sum of its lo part (the parent window). For a
+//! query that defines the whole lo part, the triangle inequality gives
+//! D(q, v) ≥ w_lo·|K(q) − K(v)| for L1, and by Cauchy–Schwarz
+//! D(q, v) ≥ w_lo·(K(q) − K(v))² / lo_len for L2. The vectors are indexed in
+//! key order, so every vector that can still beat a query's best answer lies
+//! in one contiguous window around the query's key, which narrows as the best
+//! answer improves.
+//!
+//! A batch sweeps the union of its queries' windows once, block by block, so
+//! the block is read from memory once for all queries whose windows cover it.
+//! Inside a window each vector's *head* (its lo part, up to two lanes, kept in
+//! key order beside the keys) is tested first; only heads whose partial
+//! distance does not exceed the query's best are scored in full. Answers
+//! compare (distance, index), so neither the order of the sweep nor its split
+//! over threads changes them: the result is the exhaustive one.
+
+use std::ops::Range;
+
+use rayon::prelude::*;
+
+use crate::kernel::{head_bytes, prefetch, Kernel, Params, PruneStats};
+use crate::layout::{Layout, Metric, LANE};
+use crate::merge::{merge_best, Hit};
+use crate::space::AlignedBytes;
+
+/// Slots tested between two looks at a query's best answer.
+const BLOCK: usize = 64;
+
+/// The vectors of a dense space in key order: keys, local indices and heads.
+#[derive(Debug, Clone)]
+pub(crate) struct KeyIndex {
+    keys: Vec<u32>,
+    ids: Vec<u32>,
+    /// Bytes per head ([`head_bytes`]).
+    hb: usize,
+    heads: AlignedBytes,
+}
+
+/// What a sweep needs besides the index: how to score and where the vectors are.
+pub(crate) struct Sweep<'a> {
+    pub kernel: Kernel,
+    pub layout: Layout,
+    pub params: Params,
+    /// The space's padded vectors, local index 0 first.
+    pub data: &'a [u8],
+    /// Global index of local index 0.
+    pub base: u64,
+    /// Global indices searched.
+    pub range: Range<u64>,
+    /// Fewest slots one rayon task sweeps.
+    pub min_part: usize,
+}
+
+/// One query of a sweep: values, mask, key, best answer and the window of
+/// slots that can still hold a better one.
+#[derive(Clone)]
+struct Probe<'a> {
+    q: &'a [u8],
+    m: &'a [u8],
+    key: u64,
+    best: Hit,
+    window: Range<usize>,
+}
+
+impl KeyIndex {
+    /// The index of `len` padded vectors in `data`; `None` when the layout has
+    /// no lo part (the coarsest level) or the vectors do not fit `u32` indices.
+    pub(crate) fn build(layout: &Layout, data: &[u8], len: usize) -> Option<Self> {
+        if layout.lo_len == 0 || u32::try_from(len).is_err() {
+            return None;
+        }
+        let s = layout.stride();
+        let lo = layout.hi_pad..layout.hi_pad + layout.lo_len;
+        let mut order: Vec<u64> = (0..len)
+            .into_par_iter()
+            .map(|i| {
+                let key: u64 = data[i * s..][lo.clone()]
+                    .iter()
+                    .map(|&b| u64::from(b))
+                    .sum();
+                key << 32 | i as u64
+            })
+            .collect();
+        order.par_sort_unstable();
+        let hb = head_bytes(layout);
+        let mut heads = AlignedBytes::zeroed(len * hb);
+        let mut keys = Vec::with_capacity(len);
+        let mut ids = Vec::with_capacity(len);
+        for (slot, &o) in heads.as_mut_slice().chunks_exact_mut(hb).zip(&order) {
+            let i = (o & 0xFFFF_FFFF) as usize;
+            let h = i * s + layout.hi_pad;
+            slot.copy_from_slice(&data[h..h + hb]);
+            keys.push((o >> 32) as u32);
+            ids.push(i as u32);
+        }
+        Some(Self {
+            keys,
+            ids,
+            hb,
+            heads,
+        })
+    }
+
+    /// Bytes held.
+    pub(crate) fn bytes(&self) -> u64 {
+        (self.keys.capacity() * 4 + self.ids.capacity() * 4 + self.heads.as_slice().len()) as u64
+    }
+
+    /// Whether a query with this mask can be searched by window: it defines
+    /// every lo component and the lo part has a weight.
+    pub(crate) fn applies(layout: &Layout, params: &Params, mask: &[u8]) -> bool {
+        layout.lo_len > 0
+            && params.weights.lo > 0
+            && mask[layout.hi_pad..layout.hi_pad + layout.lo_len]
+                .iter()
+                .all(|&b| b == 0xFF)
+    }
+
+    /// Largest key distance a vector can have and still score at most `best`.
+    fn reach(sw: &Sweep, best: u64) -> u64 {
+        let wl = u64::from(sw.params.weights.lo);
+        match sw.params.metric {
+            Metric::L1 => best / wl,
+            Metric::L2 => {
+                let x = u128::from(best) * sw.layout.lo_len as u128 / u128::from(wl);
+                u64::try_from(x.isqrt()).unwrap_or(u64::MAX)
+            }
+        }
+    }
+
+    /// The slots whose keys lie within `reach` of `key`.
+    fn window(&self, key: u64, reach: u64) -> Range<usize> {
+        let a = self
+            .keys
+            .partition_point(|&k| u64::from(k) < key.saturating_sub(reach));
+        let b = self
+            .keys
+            .partition_point(|&k| u64::from(k) <= key.saturating_add(reach));
+        a..b
+    }
+
+    /// The best (distance, index) of each query `(values, mask)` over the
+    /// global indices `sw.range`, starting from `start`: the start itself when
+    /// nothing in the range beats it. Every query must pass [`KeyIndex::applies`].
+    pub(crate) fn search(
+        &self,
+        sw: &Sweep,
+        queries: &[(&[u8], &[u8])],
+        start: &[Hit],
+    ) -> (Vec<Hit>, PruneStats) {
+        let lo = sw.layout.hi_pad..sw.layout.hi_pad + sw.layout.lo_len;
+        let probes: Vec<Probe> = queries
+            .iter()
+            .zip(start)
+            .map(|(&(q, m), &best)| {
+                let key = q[lo.clone()].iter().map(|&b| u64::from(b)).sum();
+                let window = self.window(key, Self::reach(sw, best.dist));
+                Probe {
+                    q,
+                    m,
+                    key,
+                    best,
+                    window,
+                }
+            })
+            .collect();
+        let from = probes.iter().map(|p| p.window.start).min().unwrap_or(0);
+        let to = probes.iter().map(|p| p.window.end).max().unwrap_or(0);
+        let threads = rayon::current_num_threads().max(1);
+        let per = (to.saturating_sub(from))
+            .div_ceil(threads * 4)
+            .max(sw.min_part.max(1));
+        let parts: Vec<(Vec<Hit>, PruneStats)> = (from..to)
+            .step_by(per)
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|a| self.sweep(sw, probes.clone(), a..(a + per).min(to)))
+            .collect();
+        let mut best = start.to_vec();
+        let mut stats = PruneStats::default();
+        for (p, s) in &parts {
+            merge_best(&mut best, p);
+            stats.add(s);
+        }
+        let chunks = (sw.layout.stride() / LANE) as u64;
+        let pairs = (sw.range.end - sw.range.start) * queries.len() as u64;
+        stats.pairs = pairs;
+        stats.chunks_full = pairs * chunks;
+        stats.pruned = pairs - stats.pruned;
+        (best, stats)
+    }
+
+    /// Sweeps the slots `part` for every probe whose window meets them, in
+    /// blocks of [`BLOCK`]; returns the best per probe and the pruning figures
+    /// (with `pruned` holding the pairs scored in full until the caller
+    /// turns it round).
+    fn sweep(
+        &self,
+        sw: &Sweep,
+        mut probes: Vec<Probe>,
+        part: Range<usize>,
+    ) -> (Vec<Hit>, PruneStats) {
+        let s = sw.layout.stride();
+        let hb = self.hb;
+        let wl = u64::from(sw.params.weights.lo);
+        let chunks = (s / LANE) as u64;
+        let local = (sw.range.start - sw.base) as usize..(sw.range.end - sw.base) as usize;
+        let mut stats = PruneStats::default();
+        let mut dist = [0u64; BLOCK];
+        let mut next = [0u32; BLOCK];
+        let mut a = part.start;
+        while a < part.end {
+            let block = a..(a + BLOCK).min(part.end);
+            a = block.end;
+            for p in probes.iter_mut() {
+                let slots = block.start.max(p.window.start)..block.end.min(p.window.end);
+                if slots.is_empty() {
+                    continue;
+                }
+                let n = slots.len();
+                let heads = &self.heads.as_slice()[slots.start * hb..slots.end * hb];
+                let qh = &p.q[sw.layout.hi_pad..sw.layout.hi_pad + hb];
+                sw.kernel
+                    .heads(sw.params.metric, heads, hb, qh, wl, &mut dist);
+                stats.chunks += n as u64 * (hb / LANE) as u64;
+                // The survivors' vectors lie anywhere in the space: ask for
+                // all of their cache lines before scoring the first one.
+                let mut count = 0;
+                for (k, &d) in dist[..n].iter().enumerate() {
+                    if d > p.best.dist {
+                        continue;
+                    }
+                    let id = self.ids[slots.start + k] as usize;
+                    if local.contains(&id) {
+                        prefetch(&sw.data[id * s..(id + 1) * s]);
+                        next[count] = k as u32;
+                        count += 1;
+                    }
+                }
+                let before = p.best;
+                for &k in &next[..count] {
+                    let (k, d) = (k as usize, dist[k as usize]);
+                    if d > p.best.dist {
+                        continue;
+                    }
+                    let id = self.ids[slots.start + k] as usize;
+                    let v = &sw.data[id * s..(id + 1) * s];
+                    let full =
+                        sw.kernel
+                            .finish(&sw.layout, &sw.params, hb, v, p.q, p.m, d, p.best.dist);
+                    stats.pruned += 1;
+                    stats.chunks += chunks;
+                    let hit = Hit {
+                        index: sw.base + id as u64,
+                        dist: full,
+                    };
+                    if hit.key() < p.best.key() {
+                        p.best = hit;
+                    }
+                }
+                if p.best.dist < before.dist {
+                    let w = self.window(p.key, Self::reach(sw, p.best.dist));
+                    p.window = p.window.start.max(w.start)..p.window.end.min(w.end);
+                }
+            }
+        }
+        (probes.iter().map(|p| p.best).collect(), stats)
+    }
+}
