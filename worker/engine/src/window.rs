@@ -65,6 +65,12 @@ struct Probe<'a> {
     window: Range<usize>,
 }
 
+/// The key of a padded vector or query: the sum of its lo part.
+fn key_of(layout: &Layout, v: &[u8]) -> u64 {
+    let lo = layout.hi_pad..layout.hi_pad + layout.lo_len;
+    v[lo].iter().map(|&b| u64::from(b)).sum()
+}
+
 impl KeyIndex {
     /// The index of `len` padded vectors in `data`; `None` when the layout has
     /// no lo part (the coarsest level) or the vectors do not fit `u32` indices.
@@ -73,16 +79,9 @@ impl KeyIndex {
             return None;
         }
         let s = layout.stride();
-        let lo = layout.hi_pad..layout.hi_pad + layout.lo_len;
         let mut order: Vec<u64> = (0..len)
             .into_par_iter()
-            .map(|i| {
-                let key: u64 = data[i * s..][lo.clone()]
-                    .iter()
-                    .map(|&b| u64::from(b))
-                    .sum();
-                key << 32 | i as u64
-            })
+            .map(|i| key_of(layout, &data[i * s..]) << 32 | i as u64)
             .collect();
         order.par_sort_unstable();
         let hb = head_bytes(layout);
@@ -151,12 +150,11 @@ impl KeyIndex {
         queries: &[(&[u8], &[u8])],
         start: &[Hit],
     ) -> (Vec<Hit>, PruneStats) {
-        let lo = sw.layout.hi_pad..sw.layout.hi_pad + sw.layout.lo_len;
         let probes: Vec<Probe> = queries
             .iter()
             .zip(start)
             .map(|(&(q, m), &best)| {
-                let key = q[lo.clone()].iter().map(|&b| u64::from(b)).sum();
+                let key = key_of(&sw.layout, q);
                 let window = self.window(key, Self::reach(sw, best.dist));
                 Probe {
                     q,

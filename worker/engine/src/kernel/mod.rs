@@ -91,16 +91,20 @@ pub struct Params {
     pub weights: Weights,
 }
 
+/// One component's term of a distance: |a − b| for L1, (a − b)² for L2.
+#[inline(always)]
+fn component(metric: Metric, a: u8, b: u8) -> u64 {
+    let d = u64::from(a.abs_diff(b));
+    match metric {
+        Metric::L1 => d,
+        Metric::L2 => d * d,
+    }
+}
+
 /// The scalar reference distance between a padded vector and a padded query
 /// (values already masked, mask 0xFF/0). Every kernel must equal it.
 pub fn distance(layout: &Layout, params: &Params, v: &[u8], q: &[u8], mask: &[u8]) -> u64 {
-    let f = |a: u8, b: u8| -> u64 {
-        let d = u64::from(a.abs_diff(b));
-        match params.metric {
-            Metric::L1 => d,
-            Metric::L2 => d * d,
-        }
-    };
+    let f = |a: u8, b: u8| component(params.metric, a, b);
     let mut hi = 0u64;
     for i in 0..layout.hi_len {
         if mask[i] != 0 {
@@ -340,14 +344,7 @@ impl Kernel {
                     let s: u64 = h
                         .iter()
                         .zip(qh)
-                        .map(|(&a, &b)| {
-                            let d = u64::from(a.abs_diff(b));
-                            if metric == Metric::L2 {
-                                d * d
-                            } else {
-                                d
-                            }
-                        })
+                        .map(|(&a, &b)| component(metric, a, b))
                         .sum();
                     *o = s * wl;
                 }
