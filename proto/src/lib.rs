@@ -7,7 +7,7 @@ pub mod auth;
 pub mod wire;
 
 /// Protocol version spoken by this build; master and worker refuse to talk across versions.
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 
 #[allow(clippy::all, missing_docs)]
 pub mod v1 {

@@ -245,6 +245,184 @@ impl LevelLoad {
     }
 }
 
+impl From<pb::LoadLevelRequest> for pb::LoadLevelPart {
+    /// A whole level in one message: the header with every byte of its planes.
+    fn from(header: pb::LoadLevelRequest) -> Self {
+        Self {
+            header: Some(header),
+            piece: None,
+        }
+    }
+}
+
+/// The `LoadLevel` stream of `level` (ARCHITECTURE §4.1): a header whose
+/// planes carry their sizes only, then the planes' bytes in pieces of at most
+/// `piece` bytes. Each piece is copied out of the level when the stream is
+/// polled, so sending a level costs a piece of memory per worker, not a copy
+/// of the level.
+pub fn load_level_parts(
+    job_id: &str,
+    level: std::sync::Arc<OwnedLevel>,
+    piece: usize,
+) -> impl Iterator<Item = pb::LoadLevelPart> + Send + 'static {
+    use pb::PlaneBuffer as B;
+    let piece = piece.max(1);
+    let size = |p: &OwnedPlane| pb::Plane {
+        width: p.width as u32,
+        height: p.height as u32,
+        pixels: Vec::new(),
+        defined: Vec::new(),
+    };
+    let header = pb::LoadLevelRequest {
+        job_id: job_id.to_string(),
+        level: level.level as u32,
+        geometry: Some(geometry_to_proto(&level.geometry, &level.params)),
+        sample: Some(size(&level.fine)),
+        parent: level.parent.as_ref().map(size),
+    };
+    // (buffer, length) of every buffer that is sent; an all-defined mask is not.
+    let sends_mask = |p: &OwnedPlane| p.defined.as_ref().is_some_and(|d| d.contains(&0));
+    let mut buffers = vec![(B::SamplePixels, level.fine.pixels.len())];
+    if sends_mask(&level.fine) {
+        buffers.push((B::SampleDefined, level.fine.pixels.len()));
+    }
+    if let Some(p) = &level.parent {
+        buffers.push((B::ParentPixels, p.pixels.len()));
+        if sends_mask(p) {
+            buffers.push((B::ParentDefined, p.pixels.len()));
+        }
+    }
+    let pieces = buffers.into_iter().flat_map(move |(buffer, len)| {
+        let level = level.clone();
+        (0..len).step_by(piece).map(move |at| {
+            let bytes = match buffer {
+                B::SamplePixels => &level.fine.pixels[..],
+                B::SampleDefined => level.fine.defined.as_deref().unwrap_or_default(),
+                B::ParentPixels => level.parent.as_ref().map_or(&[][..], |p| &p.pixels[..]),
+                B::ParentDefined => level
+                    .parent
+                    .as_ref()
+                    .and_then(|p| p.defined.as_deref())
+                    .unwrap_or_default(),
+            };
+            pb::LoadLevelPart {
+                header: None,
+                piece: Some(pb::PlanePiece {
+                    buffer: buffer as i32,
+                    data: bytes[at..(at + piece).min(len)].to_vec(),
+                }),
+            }
+        })
+    });
+    std::iter::once(pb::LoadLevelPart::from(header)).chain(pieces)
+}
+
+/// A `LoadLevel` stream being received: the header, then each piece appended
+/// to the buffer it names, never past the plane's size.
+#[derive(Debug)]
+pub struct LevelAssembly {
+    header: pb::LoadLevelRequest,
+}
+
+impl LevelAssembly {
+    /// Starts from the stream's first message, which must carry the header;
+    /// checks the job id and the geometry and that the planes' sizes are sane.
+    pub fn start(first: pb::LoadLevelPart) -> Result<Self, Status> {
+        let header = first.header.ok_or_else(|| {
+            invalid("the first LoadLevel message carries no header; send the job, level, geometry and plane sizes first")
+        })?;
+        check_job_id(&header.job_id)?;
+        geometry_from_proto(header.geometry.as_ref())?;
+        for (p, what) in [
+            (header.sample.as_ref(), "sample"),
+            (header.parent.as_ref(), "parent"),
+        ] {
+            if let Some(p) = p {
+                if p.width == 0
+                    || p.height == 0
+                    || p.width > MAX_PLANE_SIDE
+                    || p.height > MAX_PLANE_SIDE
+                {
+                    return Err(invalid(format!(
+                        "{what} plane of {}×{} pixels; each side must be 1..={MAX_PLANE_SIDE}",
+                        p.width, p.height
+                    )));
+                }
+            }
+        }
+        let mut a = Self { header };
+        if let Some(p) = first.piece {
+            a.add(pb::LoadLevelPart {
+                header: None,
+                piece: Some(p),
+            })?;
+        }
+        Ok(a)
+    }
+
+    /// Pixels of the sample and parent planes (without defined-masks).
+    pub fn pixels(&self) -> u64 {
+        let px = |p: Option<&pb::Plane>| p.map_or(0, |p| u64::from(p.width) * u64::from(p.height));
+        px(self.header.sample.as_ref()) + px(self.header.parent.as_ref())
+    }
+
+    /// Width × height of the sample plane.
+    pub fn sample_pixels(&self) -> u64 {
+        self.header
+            .sample
+            .as_ref()
+            .map_or(0, |p| u64::from(p.width) * u64::from(p.height))
+    }
+
+    /// Appends one later message's piece to its buffer.
+    pub fn add(&mut self, part: pb::LoadLevelPart) -> Result<(), Status> {
+        use pb::PlaneBuffer as B;
+        if part.header.is_some() {
+            return Err(invalid(
+                "a LoadLevel stream carries its header in the first message only",
+            ));
+        }
+        let piece = part
+            .piece
+            .ok_or_else(|| invalid("a LoadLevel message after the first carries no piece"))?;
+        let buffer = B::try_from(piece.buffer).map_err(|_| {
+            invalid(format!(
+                "unknown plane buffer {} in a LoadLevel piece",
+                piece.buffer
+            ))
+        })?;
+        let (plane, what) = match buffer {
+            B::SamplePixels | B::SampleDefined => (self.header.sample.as_mut(), "sample"),
+            B::ParentPixels | B::ParentDefined => (self.header.parent.as_mut(), "parent"),
+        };
+        let plane = plane.ok_or_else(|| {
+            invalid(format!(
+                "a LoadLevel piece is for the {what} plane, which the header does not have"
+            ))
+        })?;
+        let size = plane.width as usize * plane.height as usize;
+        let (buf, name) = match buffer {
+            B::SamplePixels | B::ParentPixels => (&mut plane.pixels, "pixels"),
+            _ => (&mut plane.defined, "defined-mask"),
+        };
+        if buf.len() + piece.data.len() > size {
+            return Err(invalid(format!(
+                "LoadLevel sends more than the {size} bytes of the {what} plane's {name}"
+            )));
+        }
+        if buf.is_empty() {
+            buf.reserve_exact(size);
+        }
+        buf.extend_from_slice(&piece.data);
+        Ok(())
+    }
+
+    /// The whole level, validated as one `LoadLevel` request.
+    pub fn finish(self) -> Result<LevelLoad, Status> {
+        LevelLoad::try_from(self.header)
+    }
+}
+
 /// Pruning figures of one search as they travel in a `SearchResult`.
 pub fn prune_to_proto(p: &PruneStats) -> pb::PruneCounts {
     pb::PruneCounts {

@@ -16,9 +16,10 @@ use serde_json::Value;
 use texsyn::cluster::{ClusterOptions, ClusterSearch, WorkerSpec};
 use texsyn::search::{LevelData, SearchBackend, Strategy};
 use texsyn::Output;
-use texsyn_engine::{Engine, Hit, QueryBatch};
+use texsyn_engine::{Engine, Hit, OwnedLevel, QueryBatch};
 use texsyn_proto::auth::BearerAuth;
 use texsyn_proto::v1 as pb;
+use texsyn_proto::wire;
 use texsyn_proto::PROTOCOL_VERSION;
 
 /// Side of the synthesised texture.
@@ -516,6 +517,11 @@ fn info() -> pb::InfoRequest {
     }
 }
 
+/// A whole `LoadLevel` request as a stream of one message.
+fn one(r: pb::LoadLevelRequest) -> tokio_stream::Iter<std::array::IntoIter<pb::LoadLevelPart, 1>> {
+    tokio_stream::iter([pb::LoadLevelPart::from(r)])
+}
+
 fn load_request(side: u32, neighbourhood: u32) -> pb::LoadLevelRequest {
     pb::LoadLevelRequest {
         job_id: "bad-calls".into(),
@@ -589,18 +595,32 @@ fn bad_calls_are_rejected_with_the_right_status_and_the_worker_keeps_serving() {
 
         // Malformed geometry (even neighbourhood) and an over-large one.
         for n in [4, 0, 65] {
-            let e = c.load_level(load_request(32, n)).await.unwrap_err();
+            let e = c.load_level(one(load_request(32, n))).await.unwrap_err();
             assert_eq!(e.code(), tonic::Code::InvalidArgument, "n={n}: {e:?}");
         }
         // A plane whose byte count does not match its size.
         let mut bad = load_request(32, 5);
         bad.sample.as_mut().unwrap().pixels.pop();
-        let e = c.load_level(bad).await.unwrap_err();
+        let e = c.load_level(one(bad)).await.unwrap_err();
         assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
 
-        // Over the 64 KiB message limit.
-        let e = c.load_level(load_request(300, 5)).await.unwrap_err();
+        // Over the 64 KiB message limit in one message; the same level in
+        // pieces that fit the limit loads.
+        let e = c.load_level(one(load_request(300, 5))).await.unwrap_err();
         assert_eq!(e.code(), tonic::Code::ResourceExhausted, "{e:?}");
+        let big = load_request(300, 5);
+        let (geometry, params) = wire::geometry_from_proto(big.geometry.as_ref()).unwrap();
+        let plane = wire::plane_from_proto(big.sample.unwrap(), "sample").unwrap();
+        let level = OwnedLevel::locate(0, geometry, params, plane, None).unwrap();
+        let total = level.total();
+        let parts = wire::load_level_parts("bad-calls", Arc::new(level), 32 << 10);
+        let r = c
+            .load_level(tokio_stream::iter(parts))
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(r.total_vectors, total);
+        assert_eq!(total, 296 * 296);
         let e = c
             .calibrate(pb::CalibrateRequest {
                 seed: 1,
@@ -614,7 +634,7 @@ fn bad_calls_are_rejected_with_the_right_status_and_the_worker_keeps_serving() {
 
         // Still serving: a valid level loads.
         let r = c
-            .load_level(load_request(32, 5))
+            .load_level(one(load_request(32, 5)))
             .await
             .unwrap()
             .into_inner();

@@ -8,8 +8,8 @@ use std::time::Duration;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use texsyn_engine::{
-    merge_best, merge_topk, Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample,
-    VectorSpace, Weights,
+    merge_best, merge_topk, Engine, Geometry, Hit, Metric, OwnedLevel, OwnedPlane, Params, Plane,
+    QueryBatch, Sample, VectorSpace, Weights,
 };
 use texsyn_proto::auth::{read_token_file, BearerAuth};
 use texsyn_proto::v1 as pb;
@@ -140,6 +140,20 @@ impl Level {
         )
     }
 
+    /// The level's `LoadLevel` stream in pieces of `piece` bytes.
+    fn parts(&self, job: &str, piece: usize) -> Vec<pb::LoadLevelPart> {
+        let p = self.planes();
+        let owned = OwnedLevel::locate(
+            0,
+            self.geometry,
+            self.params,
+            OwnedPlane::of(&p.fine),
+            p.parent.as_ref().map(OwnedPlane::of),
+        )
+        .unwrap();
+        texsyn_proto::wire::load_level_parts(job, std::sync::Arc::new(owned), piece).collect()
+    }
+
     fn dims(&self) -> usize {
         self.geometry.layout().dims()
     }
@@ -213,7 +227,7 @@ async fn search(
 /// Loads `level` as level 0 of job `job`; its number of reference vectors.
 async fn load(client: &mut Client, level: &Level, job: &str) -> u64 {
     client
-        .load_level(level.load(job, 0))
+        .load_level(one(level.load(job, 0)))
         .await
         .unwrap()
         .into_inner()
@@ -273,7 +287,7 @@ async fn cluster_of_one_two_three_workers_equals_local_engine() {
             };
             let (start, end) = (cut(i), if i + 1 == n { total } else { cut(i + 1) });
             let loaded = c
-                .load_level(level.load("job", 3))
+                .load_level(one(level.load("job", 3)))
                 .await
                 .unwrap()
                 .into_inner();
@@ -342,7 +356,7 @@ async fn lbg_workers_quantise_their_ranges() {
     let mut clients = Vec::new();
     for _ in 0..2 {
         let (w, mut c) = start(config()).await;
-        c.load_level(level.load("job", 0)).await.unwrap();
+        c.load_level(one(level.load("job", 0))).await.unwrap();
         clients.push(c);
         workers.push(w);
     }
@@ -389,7 +403,7 @@ async fn lbg_workers_quantise_their_ranges() {
 async fn empty_range_answers_none_hits() {
     let level = Level::new(3, 24);
     let (w, mut c) = start(config()).await;
-    c.load_level(level.load("j", 0)).await.unwrap();
+    c.load_level(one(level.load("j", 0))).await.unwrap();
     c.assign(assign("j", 0, 5, 5)).await.unwrap();
     let q = level.queries(1, 3);
     let r = search(
@@ -424,7 +438,7 @@ async fn wrong_or_missing_token_is_unauthenticated_and_worker_keeps_serving() {
         assert_eq!(code(c.info(info()).await), Code::Unauthenticated, "{t:?}");
         let level = Level::new(1, 24);
         assert_eq!(
-            code(c.load_level(level.load("j", 0)).await),
+            code(c.load_level(one(level.load("j", 0))).await),
             Code::Unauthenticated
         );
         assert_eq!(
@@ -452,11 +466,11 @@ async fn oversized_message_is_resource_exhausted() {
     .await;
     let big = Level::new(2, 300);
     assert_eq!(
-        code(c.load_level(big.load("j", 0)).await),
+        code(c.load_level(one(big.load("j", 0))).await),
         Code::ResourceExhausted
     );
     let small = Level::new(2, 40);
-    c.load_level(small.load("j", 0)).await.unwrap();
+    c.load_level(one(small.load("j", 0))).await.unwrap();
     c.assign(assign("j", 0, 0, 100)).await.unwrap();
     let n = 3000; // 3000 × 34 × 2 bytes > 64 KiB
     let q = small.queries(1, n);
@@ -500,7 +514,7 @@ async fn malformed_requests_get_a_status_not_a_crash() {
     );
 
     let total = c
-        .load_level(good())
+        .load_level(one(good()))
         .await
         .unwrap()
         .into_inner()
@@ -536,7 +550,7 @@ async fn malformed_requests_get_a_status_not_a_crash() {
     malformed_searches(&mut c, &q).await;
 
     // A new level replaces the old one: searches of the old level are refused.
-    c.load_level(level.load("job", 1)).await.unwrap();
+    c.load_level(one(level.load("job", 1))).await.unwrap();
     assert_eq!(
         code(search(&mut c, vec![batch("job", 2, 0, 1, 4, &q)]).await),
         Code::FailedPrecondition
@@ -553,6 +567,91 @@ async fn malformed_requests_get_a_status_not_a_crash() {
     assert!(c.end_job(end()).await.unwrap().into_inner().freed_bytes > 0);
     assert_eq!(c.end_job(end()).await.unwrap().into_inner().freed_bytes, 0);
     w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_level_sent_in_pieces_searches_as_one_sent_whole() {
+    let (w, mut c) = start(config()).await;
+    let level = Level::new(3, 40);
+    let total = load(&mut c, &level, "whole").await;
+    c.assign(assign("whole", 0, 0, total)).await.unwrap();
+    let q = level.queries(5, 16);
+    let want = search(&mut c, vec![batch("whole", 0, 0, 3, 16, &q)])
+        .await
+        .unwrap();
+    // Pieces of one byte, of a size that does not divide a plane, and larger
+    // than every plane (header and one piece per buffer).
+    for piece in [1, 333, 1 << 20] {
+        let parts = level.parts("pieces", piece);
+        assert!(parts.len() >= 4, "header, pixels, mask, parent");
+        let r = c.load_level(tokio_stream::iter(parts)).await.unwrap();
+        assert_eq!(r.into_inner().total_vectors, total, "piece {piece}");
+        c.assign(assign("pieces", 0, 0, total)).await.unwrap();
+        let got = search(&mut c, vec![batch("pieces", 0, 0, 3, 16, &q)])
+            .await
+            .unwrap();
+        assert_eq!(
+            topk_hits(&got[0], 16).unwrap(),
+            topk_hits(&want[0], 16).unwrap(),
+            "piece {piece}"
+        );
+    }
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_load_level_streams_get_invalid_argument() {
+    let (w, mut c) = start(config()).await;
+    let level = Level::new(3, 40);
+    let parts = level.parts("j", 500);
+    let piece = |buffer: pb::PlaneBuffer, data: Vec<u8>| pb::LoadLevelPart {
+        header: None,
+        piece: Some(pb::PlanePiece {
+            buffer: buffer as i32,
+            data,
+        }),
+    };
+    let mut no_parent = parts[0].clone();
+    no_parent.header.as_mut().unwrap().parent = None;
+    let cases: Vec<(&str, Vec<pb::LoadLevelPart>)> = vec![
+        ("empty stream", vec![]),
+        ("piece before the header", parts[1..].to_vec()),
+        ("header twice", [&parts[..], &parts[..1]].concat()),
+        ("a piece past its plane", {
+            let mut p = parts.clone();
+            p.push(piece(pb::PlaneBuffer::SamplePixels, vec![0]));
+            p
+        }),
+        ("a short plane", parts[..parts.len() - 1].to_vec()),
+        ("unknown buffer", {
+            let mut p = parts.clone();
+            p[1].piece.as_mut().unwrap().buffer = 9;
+            p
+        }),
+        ("a message with neither", {
+            let mut p = parts.clone();
+            p.insert(1, pb::LoadLevelPart::default());
+            p
+        }),
+        ("a piece for a plane the header lacks", {
+            let mut p = parts.clone();
+            p[0] = no_parent;
+            p
+        }),
+    ];
+    for (what, parts) in cases {
+        let r = c.load_level(tokio_stream::iter(parts)).await;
+        assert_eq!(code(r), Code::InvalidArgument, "{what}");
+    }
+    // Still serving.
+    let r = c.load_level(tokio_stream::iter(parts)).await.unwrap();
+    assert!(r.into_inner().total_vectors > 0);
+    w.shutdown().await;
+}
+
+/// A whole `LoadLevel` request as a stream of one message.
+fn one(r: pb::LoadLevelRequest) -> tokio_stream::Iter<std::array::IntoIter<pb::LoadLevelPart, 1>> {
+    tokio_stream::iter([pb::LoadLevelPart::from(r)])
 }
 
 /// A change that makes a good `LoadLevel` request malformed.
@@ -593,7 +692,11 @@ async fn malformed_load_levels(c: &mut Client, good: impl Fn() -> pb::LoadLevelR
     for (what, spoil) in cases {
         let mut r = good();
         spoil(&mut r);
-        assert_eq!(code(c.load_level(r).await), Code::InvalidArgument, "{what}");
+        assert_eq!(
+            code(c.load_level(one(r)).await),
+            Code::InvalidArgument,
+            "{what}"
+        );
     }
 }
 
@@ -806,7 +909,7 @@ async fn idle_timeout_frees_the_job() {
     })
     .await;
     let level = Level::new(4, 40);
-    c.load_level(level.load("j", 0)).await.unwrap();
+    c.load_level(one(level.load("j", 0))).await.unwrap();
     c.assign(assign("j", 0, 0, 100)).await.unwrap();
     let info = || pb::InfoRequest {
         protocol_version: PROTOCOL_VERSION,
@@ -828,7 +931,7 @@ async fn idle_timeout_frees_the_job() {
 async fn shutdown_ends_open_search_streams() {
     let (w, mut c) = start(config()).await;
     let level = Level::new(4, 40);
-    c.load_level(level.load("j", 0)).await.unwrap();
+    c.load_level(one(level.load("j", 0))).await.unwrap();
     c.assign(assign("j", 0, 0, 100)).await.unwrap();
     let (tx, rx) = tokio::sync::mpsc::channel(1);
     let mut stream = c

@@ -267,14 +267,18 @@ pub(crate) async fn handshake(
     Ok(Handshake { client, info })
 }
 
+/// Sends a level as its `LoadLevel` stream of `parts`.
 pub(crate) async fn load_level(
     mut client: Client,
-    req: pb::LoadLevelRequest,
+    parts: impl Iterator<Item = pb::LoadLevelPart> + Send + 'static,
     d: Duration,
 ) -> ClusterResult<pb::LoadLevelReply> {
-    Ok(within(d, "LoadLevel", client.load_level(request(req, d)))
-        .await?
-        .into_inner())
+    let stream = tokio_stream::iter(parts);
+    Ok(
+        within(d, "LoadLevel", client.load_level(request(stream, d)))
+            .await?
+            .into_inner(),
+    )
 }
 
 pub(crate) async fn assign(

@@ -35,10 +35,6 @@ pub enum ClusterError {
     #[error("Calibrate answered an invalid throughput {0}")]
     InvalidThroughput(f64),
     #[error(
-        "the level images ({bytes} bytes) exceed the worker's message limit; start it with a larger --max-message"
-    )]
-    LevelTooLarge { bytes: u64 },
-    #[error(
         "LoadLevel counted {counted} reference vectors where the master counts {total} (different texsyn versions?)"
     )]
     VectorCount { counted: u64, total: u64 },

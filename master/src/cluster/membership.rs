@@ -224,7 +224,6 @@ impl ClusterSearch {
         if todo.is_empty() {
             return;
         }
-        let req = level.load_request(&self.opts.job_id);
         let total = level.total();
         let bytes = level.image_bytes();
         let d = call_deadline(self.opts.call_timeout, bytes as f64, 20e6);
@@ -232,20 +231,11 @@ impl ClusterSearch {
             .iter()
             .map(|&i| {
                 let s = &self.slots[i];
-                let too_big = s
-                    .info
-                    .as_ref()
-                    .is_some_and(|inf| bytes + 4096 > inf.max_message);
+                let max_message = s.info.as_ref().map_or(4 << 20, |inf| inf.max_message);
+                let parts = level.load_parts(&self.opts.job_id, max_message);
                 let client = s.client.clone().expect("active");
-                let req = req.clone();
                 let span = tracing::info_span!("worker", address = %s.spec.address);
-                async move {
-                    if too_big {
-                        return Err(ClusterError::LevelTooLarge { bytes });
-                    }
-                    conn::load_level(client, req, d).await
-                }
-                .instrument(span)
+                conn::load_level(client, parts, d).instrument(span)
             })
             .collect();
         let results = block_on(self.rt(), join_all(jobs));

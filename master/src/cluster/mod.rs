@@ -36,13 +36,14 @@ pub mod report;
 pub mod status;
 
 use std::ops::Range;
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use rand::Rng;
 use texsyn_engine::{Engine, Hit, Layout, OwnedLevel, PruneStats, QueryBatch, VectorSpace};
 use texsyn_proto::v1 as pb;
-use texsyn_proto::wire::load_level_request;
+use texsyn_proto::wire::load_level_parts;
 use texsyn_proto::PROTOCOL_VERSION;
 
 pub use conn::{split_address, WorkerSpec};
@@ -132,10 +133,14 @@ impl Default for ClusterOptions {
     }
 }
 
+/// Largest piece of a level's planes in one `LoadLevel` message.
+const LOAD_PIECE: usize = 4 << 20;
+
 /// The level being searched. Its data is owned: needed again when the master
 /// must build vectors for a range after a repartition or a fallback.
 struct LevelState {
-    data: OwnedLevel,
+    /// Shared with the `LoadLevel` streams that send it to workers.
+    data: Arc<OwnedLevel>,
     /// About how many queries the level will ask.
     expected_queries: u64,
     /// Queries answered so far.
@@ -161,9 +166,14 @@ impl LevelState {
             + self.data.parent.as_ref().map_or(0, |p| p.pixels.len() * 2) as u64
     }
 
-    fn load_request(&self, job_id: &str) -> pb::LoadLevelRequest {
-        let d = &self.data;
-        load_level_request(job_id, d.level as u32, &d.geometry, &d.params, &d.sample())
+    /// The level's `LoadLevel` stream, in pieces that fit `max_message`.
+    fn load_parts(
+        &self,
+        job_id: &str,
+        max_message: u64,
+    ) -> impl Iterator<Item = pb::LoadLevelPart> + Send + 'static {
+        let piece = (max_message / 2).clamp(1, LOAD_PIECE as u64) as usize;
+        load_level_parts(job_id, self.data.clone(), piece)
     }
 }
 
@@ -283,7 +293,7 @@ impl SearchBackend for ClusterSearch {
         let _enter = span.enter();
         self.current_batch = None;
         self.level = Some(LevelState {
-            data: data.owned_level(),
+            data: Arc::new(data.owned_level()),
             expected_queries: data.expected_queries,
             queries: 0,
             rebalanced: false,

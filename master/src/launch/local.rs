@@ -15,10 +15,6 @@ use texsyn_proto::wire::parse_listening_line;
 
 use super::{end_with_parent, first_line, WorkerSpec, START_TIMEOUT};
 
-/// `--max-message` of local workers: room for the planes of an 8192² sample
-/// level and its parent, with their masks, several times over.
-const LOCAL_MAX_MESSAGE: &str = "1G";
-
 /// Name of the worker executable.
 pub const WORKER_BINARY: &str = "texsyn-worker";
 
@@ -220,14 +216,6 @@ impl LocalWorkers {
                 "--token-file".into(),
                 token_path.clone().into(),
             ];
-            // Workers on this machine take whole level images of any sample
-            // the master could load (the default limit suits a LAN).
-            if !extra
-                .iter()
-                .any(|a| a.to_str().is_some_and(|a| a.starts_with("--max-message")))
-            {
-                args.extend(["--max-message".into(), LOCAL_MAX_MESSAGE.into()]);
-            }
             args.extend(extra.iter().cloned());
             let log = dir.path().join(format!("worker-{}.log", k + 1));
             // On error the workers started so far are killed by their Drop.

@@ -22,7 +22,7 @@ use crate::error::{EngineError, Result};
 use crate::kernel::{distance, Kernel, Params, PruneStats, Scan, Sink};
 use crate::merge::{merge_best, merge_topk, Hit};
 use crate::space::VectorSpace;
-use crate::window::{KeyIndex, Sweep};
+use crate::window::Sweep;
 
 /// Per query the best (distance, index) so far, started from the query's
 /// bound. Comparisons are on the pair, so a vector that ties the bound with a
@@ -269,21 +269,15 @@ impl Engine {
         self.check(space, &range, queries)?;
         let start = self.start_from_candidates(space, &range, queries, params);
         let layout = space.layout();
-        let keyed = if self.prune { space.key_index() } else { None };
-        let (windowed, scanned): (Vec<usize>, Vec<usize>) = (0..queries.len())
-            .partition(|&q| keyed.is_some() && KeyIndex::applies(&layout, params, queries.mask(q)));
+        let (windowed, scanned): (Vec<usize>, Vec<usize>) =
+            (0..queries.len()).partition(|&q| self.prune && space.keyed(params, queries.mask(q)));
         let mut best = start.clone();
         let mut stats = PruneStats::default();
-        if let (Some(index), false) = (keyed, windowed.is_empty()) {
-            let data = space
-                .dense_slice(space.start()..space.end())
-                .expect("a space with a key index is dense");
+        if !windowed.is_empty() {
             let sweep = Sweep {
                 kernel: self.kernel,
                 layout,
                 params: *params,
-                data,
-                base: space.start(),
                 range: range.clone(),
                 min_part: self.min_chunk,
             };
@@ -292,7 +286,7 @@ impl Engine {
                 .map(|&q| (queries.values(q), queries.mask(q)))
                 .collect();
             let from: Vec<Hit> = windowed.iter().map(|&q| start[q]).collect();
-            let (found, s) = index.search(&sweep, &qs, &from);
+            let (found, s) = space.search_keyed(&sweep, &qs, &from);
             for (&q, hit) in windowed.iter().zip(found) {
                 best[q] = hit;
             }

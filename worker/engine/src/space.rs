@@ -13,10 +13,12 @@ use std::ops::Range;
 use std::sync::OnceLock;
 
 use crate::error::{EngineError, Result};
+use crate::kernel::{Params, PruneStats};
 use crate::layout::{Geometry, Layout, SLACK};
+use crate::merge::Hit;
 use crate::plane::{reference_positions, Plane, Sample};
 use crate::positions::Positions;
-use crate::window::KeyIndex;
+use crate::window::{Dense, KeyIndex, KeyPlane, PlaneVectors, Sweep};
 
 /// A zeroed byte buffer whose start is 64-byte aligned, so that a 64-byte SIMD
 /// load of a vector at a multiple-of-64 offset never splits a cache line.
@@ -118,12 +120,14 @@ impl Storage {
     }
 }
 
-/// A sample plane copied with [`PIECE`] readable bytes after its last pixel,
-/// so a row of any window is read in whole 16-byte pieces.
+/// The rows `row0..row0 + rows` of a sample plane, copied with [`PIECE`]
+/// readable bytes after the last pixel, so a row of any window is read in
+/// whole 16-byte pieces. A space keeps only the rows its range's windows
+/// reach, so a worker holding part of a level holds part of its planes.
 #[derive(Debug, Clone)]
 struct PaddedPlane {
     width: usize,
-    height: usize,
+    row0: usize,
     pixels: Vec<u8>,
 }
 
@@ -132,22 +136,31 @@ struct PaddedPlane {
 const PIECE: usize = 16;
 
 impl PaddedPlane {
-    fn of(p: &Plane) -> Self {
-        let mut pixels = Vec::with_capacity(p.pixels.len() + PIECE);
-        pixels.extend_from_slice(p.pixels);
-        pixels.resize(p.pixels.len() + PIECE, 0);
+    /// Rows `rows` of `p` (clipped to the plane).
+    fn of(p: &Plane, rows: Range<usize>) -> Self {
+        let rows = rows.start.min(p.height)..rows.end.min(p.height);
+        let px = &p.pixels[rows.start * p.width..rows.end.max(rows.start) * p.width];
+        let mut pixels = Vec::with_capacity(px.len() + PIECE);
+        pixels.extend_from_slice(px);
+        pixels.resize(px.len() + PIECE, 0);
         Self {
             width: p.width,
-            height: p.height,
+            row0: rows.start,
             pixels,
         }
     }
 
     /// Whether the `side`×`side` windows centred at (x..x + len, y) lie inside
-    /// the plane.
+    /// the rows held.
     fn holds(&self, x: usize, y: usize, len: usize, side: usize) -> bool {
         let r = side / 2;
-        x >= r && y >= r && x + len - 1 + r < self.width && y + r < self.height
+        let rows = self.pixels.len().saturating_sub(PIECE) / self.width;
+        x >= r && y >= self.row0 + r && x + len - 1 + r < self.width && y + r < self.row0 + rows
+    }
+
+    /// The pixel (x, y), which must be held.
+    fn at(&self, x: usize, y: usize) -> *const u8 {
+        self.pixels[(y - self.row0) * self.width + x..].as_ptr()
     }
 }
 
@@ -258,12 +271,15 @@ impl PlaneSource {
             // `dst` (asserted above).
             unsafe {
                 let f = &self.fine;
-                let src = f.pixels.as_ptr().add((y - fr) * f.width + xx - fr);
-                copy_window(src, f.width, g.n, out.add(d));
+                copy_window(f.at(xx - fr, y - fr), f.width, g.n, out.add(d));
                 zero(out.add(d + layout.hi_len), layout.hi_pad - layout.hi_len);
                 if let Some(p) = &self.parent {
-                    let src = p.pixels.as_ptr().add((y / 2 - pr) * p.width + xx / 2 - pr);
-                    copy_window(src, p.width, g.m, out.add(d + layout.hi_pad));
+                    copy_window(
+                        p.at(xx / 2 - pr, y / 2 - pr),
+                        p.width,
+                        g.m,
+                        out.add(d + layout.hi_pad),
+                    );
                 }
                 zero(
                     out.add(d + layout.hi_pad + layout.lo_len),
@@ -297,6 +313,8 @@ pub struct VectorSpace {
     /// The vectors in key order, built on the first windowed search of a
     /// dense space (ARCHITECTURE §3.5).
     keys: OnceLock<Option<KeyIndex>>,
+    /// The keys of a plane-backed space, built on its first windowed search.
+    key_plane: OnceLock<Option<KeyPlane>>,
 }
 
 impl VectorSpace {
@@ -346,14 +364,24 @@ impl VectorSpace {
         }
         let layout = geometry.layout();
         let len = (range.end - range.start) as usize;
+        // The rows the range's windows reach: from the first position's row
+        // to the last one's, widened by the window radii.
+        let (y0, y1) = match (
+            all.get(range.start),
+            range.end.checked_sub(1).and_then(|i| all.get(i)),
+        ) {
+            (Some([_, a]), Some([_, b])) if len > 0 => (a as usize, b as usize + 1),
+            _ => (0, 0),
+        };
+        let (r, pr) = (geometry.radius(), geometry.parent_radius());
         let source = PlaneSource {
             geometry: *geometry,
-            fine: PaddedPlane::of(&sample.fine),
+            fine: PaddedPlane::of(&sample.fine, y0.saturating_sub(r)..y1 + r),
             parent: sample
                 .parent
                 .as_ref()
                 .filter(|_| geometry.m > 0)
-                .map(PaddedPlane::of),
+                .map(|p| PaddedPlane::of(p, (y0 / 2).saturating_sub(pr)..y1.div_ceil(2) + pr)),
         };
         let dense_bytes = len as u64 * layout.dense_bytes_per_vector() as u64;
         let storage = match storage {
@@ -375,6 +403,7 @@ impl VectorSpace {
             data,
             positions: all.clone(),
             keys: OnceLock::new(),
+            key_plane: OnceLock::new(),
         })
     }
 
@@ -405,6 +434,7 @@ impl VectorSpace {
             data: Data::Dense(data),
             positions: Positions::new(),
             keys: OnceLock::new(),
+            key_plane: OnceLock::new(),
         })
     }
 
@@ -488,13 +518,18 @@ impl VectorSpace {
     }
 
     /// Bytes this space holds: the vectors, or the planes and positions, and
-    /// the key index once a search has built it.
+    /// the keys once a search has built them.
     pub fn held_bytes(&self) -> u64 {
         let keys = self
             .keys
             .get()
             .and_then(Option::as_ref)
-            .map_or(0, KeyIndex::bytes);
+            .map_or(0, KeyIndex::bytes)
+            + self
+                .key_plane
+                .get()
+                .and_then(Option::as_ref)
+                .map_or(0, KeyPlane::bytes);
         keys + match &self.data {
             Data::Dense(_) => (self.bytes() + SLACK) as u64 + self.positions.bytes(),
             Data::Planes(src) => src.bytes() + self.positions.bytes(),
@@ -503,13 +538,74 @@ impl VectorSpace {
 
     /// The vectors in key order for windowed search, built on first use;
     /// `None` for a plane-backed space or a layout without a lo part.
-    pub(crate) fn key_index(&self) -> Option<&KeyIndex> {
+    fn key_index(&self) -> Option<&KeyIndex> {
         let Data::Dense(d) = &self.data else {
             return None;
         };
         self.keys
             .get_or_init(|| KeyIndex::build(&self.layout, d.as_slice(), self.len))
             .as_ref()
+    }
+
+    /// The keys of a plane-backed space, built on first use; `None` for a
+    /// dense space, a layout without a lo part or a parent window too large
+    /// for two-byte keys.
+    fn key_plane(&self) -> Option<&KeyPlane> {
+        let Data::Planes(src) = &self.data else {
+            return None;
+        };
+        self.key_plane
+            .get_or_init(|| {
+                let p = src.parent.as_ref()?;
+                let pixels = &p.pixels[..p.pixels.len() - PIECE];
+                KeyPlane::build(pixels, p.width, p.row0, src.geometry.m)
+            })
+            .as_ref()
+    }
+
+    /// Whether a query with this mask can be searched by key windows here
+    /// (building the keys on first use).
+    pub(crate) fn keyed(&self, params: &Params, mask: &[u8]) -> bool {
+        match &self.data {
+            Data::Dense(_) => {
+                KeyIndex::applies(&self.layout, params, mask) && self.key_index().is_some()
+            }
+            Data::Planes(_) => self
+                .key_plane()
+                .is_some_and(|k| k.applies(&self.layout, params, mask)),
+        }
+    }
+
+    /// The windowed search of `queries` over `sw.range` from `start`
+    /// (ARCHITECTURE §3.5). Every query must pass [`VectorSpace::keyed`].
+    ///
+    /// # Panics
+    /// If the space has no keys.
+    pub(crate) fn search_keyed(
+        &self,
+        sw: &Sweep,
+        queries: &[(&[u8], &[u8])],
+        start: &[Hit],
+    ) -> (Vec<Hit>, PruneStats) {
+        match &self.data {
+            Data::Dense(d) => {
+                let dense = Dense {
+                    data: d.as_slice(),
+                    base: self.start,
+                };
+                let index = self.key_index().expect("a windowed search needs keys");
+                index.search(sw, &dense, queries, start)
+            }
+            Data::Planes(src) => {
+                let view = PlaneView {
+                    src,
+                    layout: &self.layout,
+                    positions: &self.positions,
+                };
+                let keys = self.key_plane().expect("a windowed search needs keys");
+                keys.search(sw, &view, queries, start)
+            }
+        }
     }
 
     /// Padded data of the global index range `range` plus the trailing slack
@@ -548,6 +644,27 @@ impl VectorSpace {
                 }
             }
         }
+    }
+}
+
+/// A plane-backed space as a windowed sweep reads it.
+struct PlaneView<'a> {
+    src: &'a PlaneSource,
+    layout: &'a Layout,
+    positions: &'a Positions,
+}
+
+impl PlaneVectors for PlaneView<'_> {
+    fn runs(&self, range: Range<u64>) -> Vec<(u64, u32, u32, u32)> {
+        self.positions.runs(range).collect()
+    }
+
+    fn span(&self) -> usize {
+        write_span(self.layout, &self.src.geometry)
+    }
+
+    fn gather(&self, x: usize, y: usize, dst: &mut [u8]) {
+        self.src.gather_run(self.layout, x, y, 1, dst, 0);
     }
 }
 

@@ -51,7 +51,7 @@ fn noise(seed: u64, len: usize) -> Vec<u8> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(24))]
+    #![proptest_config(ProptestConfig::with_cases(64))]
 
     #[test]
     fn planes_and_dense_spaces_answer_the_same(
@@ -62,6 +62,8 @@ proptest! {
         seed in any::<u64>(),
         (a, b) in (0.0f64..0.5, 0.5f64..=1.0),
         l2 in any::<bool>(),
+        lo_kind in 0u8..3,
+        (r0, r1, c0, c1) in (0usize..17, 0usize..17, 0usize..17, 0usize..17),
         threads in 1usize..=2,
     ) {
         let fine = noise(seed, w * h);
@@ -105,7 +107,16 @@ proptest! {
             let mut mask = vec![1u8; raw.len()];
             for (k, v) in raw.iter_mut().enumerate() {
                 *v = v.wrapping_add(extra[k] % 9);
+                // Parent components: random (0), all defined (1), or a
+                // rectangle of the window (2), as at a canvas border. A
+                // dense space searches full ones by key windows, a
+                // plane-backed one full ones and rectangles.
                 mask[k] = u8::from(!extra[k].is_multiple_of(5));
+                if k >= n * n && lo_kind > 0 {
+                    let (r, c) = ((k - n * n) / m, (k - n * n) % m);
+                    let inside = |a: usize, b: usize, i: usize| a.min(b) % m <= i && i <= a.max(b) % m;
+                    mask[k] = u8::from(lo_kind == 1 || (inside(r0, r1, r) && inside(c0, c1, c)));
+                }
             }
             batch.push(&raw, &mask).unwrap();
             batch.set_candidates(q as usize, vec![i, i + 1]);
@@ -125,11 +136,19 @@ proptest! {
                     "{} distances", k.name()
                 );
                 // The answers, not the pruning figures: a dense space walks
-                // key-ordered windows, a plane-backed one scans.
+                // key-ordered windows, a plane-backed one sweeps its keys in
+                // index order; both equal the unpruned scan.
+                let exhaustive = e.with_pruning(false);
+                let want = exhaustive.search_best(&dense, r.clone(), &batch, &params).unwrap();
                 assert_eq!(
                     e.search_best(&planes, r.clone(), &batch, &params).unwrap(),
+                    want,
+                    "{} best on planes", k.name()
+                );
+                assert_eq!(
                     e.search_best(&dense, r.clone(), &batch, &params).unwrap(),
-                    "{} best", k.name()
+                    want,
+                    "{} best dense", k.name()
                 );
                 assert_eq!(
                     e.search_topk(&planes, r.clone(), &batch, &params, 3).unwrap(),

@@ -13,7 +13,7 @@ use texsyn_engine::{
 use texsyn_proto::v1 as proto;
 use texsyn_proto::v1::worker_server::Worker;
 use texsyn_proto::wire::{
-    bounds_from_proto, check_job_id, engine_status, invalid, prune_to_proto, LevelLoad,
+    bounds_from_proto, check_job_id, engine_status, invalid, prune_to_proto, LevelAssembly,
     MAX_QUERIES, MAX_TOP_K,
 };
 use texsyn_proto::PROTOCOL_VERSION;
@@ -114,18 +114,28 @@ impl Worker for WorkerService {
 
     async fn load_level(
         &self,
-        request: Request<proto::LoadLevelRequest>,
+        request: Request<Streaming<proto::LoadLevelPart>>,
     ) -> Result<Response<proto::LoadLevelReply>, Status> {
-        let r = LevelLoad::try_from(request.into_inner())?;
-        let planes = r.plane_bytes();
-        // Worst case: every pixel is a reference position (8 bytes each).
-        let bound = planes + r.sample.width as u64 * r.sample.height as u64 * 8;
+        let mut parts = request.into_inner();
+        let first = parts
+            .message()
+            .await?
+            .ok_or_else(|| invalid("the LoadLevel stream is empty; send a header first"))?;
+        let mut assembly = LevelAssembly::start(first)?;
+        // Worst case before a byte of the planes is held: pixels and
+        // defined-masks of both planes, and every sample pixel a reference
+        // position (8 bytes each).
+        let bound = assembly.pixels() * 2 + assembly.sample_pixels() * 8;
         if bound > self.shared.max_memory {
             return Err(exhausted(format!(
-                "level {} of job '{}' may need {bound} bytes, over --max-memory {}",
-                r.level, r.job_id, self.shared.max_memory
+                "a level of this job may need {bound} bytes, over --max-memory {}",
+                self.shared.max_memory
             )));
         }
+        while let Some(part) = parts.message().await? {
+            assembly.add(part)?;
+        }
+        let r = assembly.finish()?;
         self.shared.begin_level(&r.job_id)?;
         let t = Instant::now();
         let (job_id, number) = (r.job_id.clone(), r.level);
