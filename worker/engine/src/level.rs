@@ -94,7 +94,7 @@ impl OwnedLevel {
         }
     }
 
-    /// Bytes of the planes (what a plane-backed space of the level copies).
+    /// Bytes a plane-backed space of the whole level holds ([`Sample::plane_bytes`]).
     pub fn plane_bytes(&self) -> u64 {
         self.sample().plane_bytes()
     }

@@ -120,10 +120,12 @@ pub struct Sample<'a> {
 }
 
 impl Sample<'_> {
-    /// Bytes of the planes' pixels (what a plane-backed space copies).
+    /// Bytes a plane-backed space of the whole level holds: copies of the
+    /// planes' pixels and the summed-area table of the parent (its keys).
     pub fn plane_bytes(&self) -> u64 {
         let p = |q: &Plane| (q.width * q.height) as u64;
-        p(&self.fine) + self.parent.as_ref().map_or(0, p)
+        let table = |q: &Plane| ((q.width + 1) * (q.height + 1) * 4) as u64;
+        p(&self.fine) + self.parent.as_ref().map_or(0, |q| p(q) + table(q))
     }
 }
 
