@@ -350,6 +350,22 @@ impl LevelAssembly {
                 }
             }
         }
+        // The parent is the sample one pyramid level down (each side halved,
+        // rounded up); anything larger is not a parent and is refused before
+        // it is received.
+        if let (Some(s), Some(p)) = (header.sample.as_ref(), header.parent.as_ref()) {
+            if p.width > s.width.div_ceil(2) || p.height > s.height.div_ceil(2) {
+                return Err(invalid(format!(
+                    "parent plane of {}×{} pixels for a {}×{} sample; a parent is the sample halved, at most {}×{}",
+                    p.width,
+                    p.height,
+                    s.width,
+                    s.height,
+                    s.width.div_ceil(2),
+                    s.height.div_ceil(2)
+                )));
+            }
+        }
         let mut a = Self { header };
         if let Some(p) = first.piece {
             a.add(pb::LoadLevelPart {
@@ -358,6 +374,11 @@ impl LevelAssembly {
             })?;
         }
         Ok(a)
+    }
+
+    /// The job the level is for.
+    pub fn job_id(&self) -> &str {
+        &self.header.job_id
     }
 
     /// Pixels of the sample and parent planes (without defined-masks).

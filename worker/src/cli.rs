@@ -78,7 +78,9 @@ pub struct ServeArgs {
     /// TLS private key (PEM); needs --tls-cert.
     #[arg(long, requires = "tls_cert")]
     pub tls_key: Option<PathBuf>,
-    /// Most memory one job may hold, in bytes (suffixes K, M, G allowed; default 3/4 of RAM).
+    /// Most memory the worker may hold for all jobs and calls together, in
+    /// bytes (suffixes K, M, G allowed; default 3/4 of the RAM or of the
+    /// control group's memory limit, whichever is smaller).
     #[arg(long, value_parser = parse_bytes)]
     pub max_memory: Option<u64>,
     /// Largest gRPC message, in bytes (suffixes K, M, G allowed).
@@ -95,6 +97,10 @@ pub struct ServeArgs {
     /// sample pixel) or auto (dense while they fit in 1 GiB and half of --max-memory).
     #[arg(long, default_value = "auto")]
     pub vector_store: String,
+    /// Serve a non-loopback --listen address without a token. Anyone who can
+    /// reach the port can then use the worker: only for networks you trust.
+    #[arg(long)]
+    pub insecure_no_auth: bool,
     /// Read the shared token from the first line of stdin (never from the command line).
     #[arg(long, conflicts_with = "token_file")]
     pub token_stdin: bool,
@@ -144,6 +150,7 @@ impl TryFrom<ServeArgs> for WorkerConfig {
             listen: a.listen,
             threads: a.threads.unwrap_or(defaults.threads),
             token,
+            insecure_no_auth: a.insecure_no_auth,
             tls,
             max_memory: a.max_memory.unwrap_or(defaults.max_memory),
             max_message,

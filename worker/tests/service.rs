@@ -807,6 +807,131 @@ async fn memory_limit_is_resource_exhausted() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn jobs_share_one_memory_budget() {
+    // Two jobs that each ask for over half of --max-memory: the second is
+    // refused until the first ends, and concurrent Assigns never hold more
+    // than the cap.
+    let max = 6u64 << 20;
+    let (w, mut c) = start(WorkerConfig {
+        max_memory: max,
+        storage: texsyn_engine::Storage::Dense,
+        ..config()
+    })
+    .await;
+    let level = Level::new(9, 300);
+    let total = load(&mut c, &level, "a").await;
+    load(&mut c, &level, "b").await;
+    let small = c
+        .assign(assign("a", 0, 0, 1000))
+        .await
+        .unwrap()
+        .into_inner();
+    let large = c
+        .assign(assign("a", 0, 0, 3000))
+        .await
+        .unwrap()
+        .into_inner();
+    let per_vector = (large.bytes - small.bytes) / 2000;
+    let n = total;
+    assert!(
+        n * per_vector > max / 2,
+        "each job's range must need more than half the budget"
+    );
+    c.assign(assign("a", 0, 0, n)).await.unwrap();
+    let e = c.assign(assign("b", 0, 0, n)).await.unwrap_err();
+    assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
+    assert!(e.message().contains("--max-memory"), "{}", e.message());
+    c.end_job(pb::EndJobRequest { job_id: "a".into() })
+        .await
+        .unwrap();
+    c.assign(assign("b", 0, 0, n)).await.unwrap();
+
+    // Eight concurrent Assigns of job b, each over half the cap.
+    let calls = (0..8).map(|_| {
+        let mut c = c.clone();
+        tokio::spawn(async move { c.assign(assign("b", 0, 0, n)).await })
+    });
+    let mut ok = 0;
+    for call in calls {
+        match call.await.unwrap() {
+            Ok(_) => ok += 1,
+            Err(e) => assert!(
+                matches!(e.code(), Code::ResourceExhausted | Code::FailedPrecondition),
+                "{e:?}"
+            ),
+        }
+    }
+    assert!(ok >= 1, "at least one Assign succeeds");
+    let info = c
+        .info(pb::InfoRequest {
+            protocol_version: PROTOCOL_VERSION,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(info.memory_limit, max);
+    assert!(
+        info.memory_peak <= max,
+        "peak {} over {max}",
+        info.memory_peak
+    );
+    assert!(info.memory_in_use <= max);
+    // A search still works on what was installed last.
+    let q = level.queries(3, 4);
+    search(&mut c, vec![batch("b", 0, 1, 1, 4, &q)])
+        .await
+        .unwrap();
+    c.end_job(pb::EndJobRequest { job_id: "b".into() })
+        .await
+        .unwrap();
+    let info = c
+        .info(pb::InfoRequest {
+            protocol_version: PROTOCOL_VERSION,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(info.memory_in_use, 0, "ending every job frees every byte");
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn oversized_parents_and_top_k_are_refused_before_allocation() {
+    let (w, mut c) = start(config()).await;
+    let level = Level::new(4, 40);
+    let mut big_parent = level.load("j", 0);
+    if let Some(p) = big_parent.parent.as_mut() {
+        p.width = 65536;
+        p.height = 65536;
+        p.pixels.clear();
+        p.defined.clear();
+    }
+    let e = c.load_level(one(big_parent)).await.unwrap_err();
+    assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
+    assert!(e.message().contains("parent"), "{}", e.message());
+    // A whole 65536² sample is over any budget here: refused before it is sent.
+    let mut big = level.load("j", 0);
+    if let Some(s) = big.sample.as_mut() {
+        s.width = 65536;
+        s.height = 65536;
+        s.pixels.clear();
+        s.defined.clear();
+    }
+    big.parent = None;
+    big.geometry.as_mut().unwrap().parent_window = 0;
+    let e = c.load_level(one(big)).await.unwrap_err();
+    assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
+    let total = load(&mut c, &level, "j").await;
+    c.assign(assign("j", 0, 0, total)).await.unwrap();
+    let q = level.queries(1, 2);
+    let e = search(&mut c, vec![batch("j", 0, 1, 1_000_000, 2, &q)])
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn protocol_version_mismatch_is_failed_precondition() {
     let (w, mut c) = start(config()).await;
     let s = c

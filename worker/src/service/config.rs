@@ -8,6 +8,8 @@ use anyhow::{bail, Context};
 
 use texsyn_engine::{Kernel, Storage};
 
+use super::budget::default_max_memory;
+
 /// Default listen address: loopback only, so a worker is never exposed by accident.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:7878";
 /// Default cap on decoded and encoded gRPC messages.
@@ -59,8 +61,12 @@ pub struct WorkerConfig {
     pub threads: usize,
     /// Shared secret every call must carry as `authorization: Bearer <token>`.
     pub token: Option<String>,
+    /// Serve a non-loopback address without a token (`--insecure-no-auth`):
+    /// anyone who can reach the port may use the worker.
+    pub insecure_no_auth: bool,
     pub tls: Option<TlsIdentity>,
-    /// Most bytes one job may hold (level images, positions and vectors).
+    /// Most bytes the worker may hold for all jobs and calls together
+    /// (level images, positions, vectors, keys and per-call buffers).
     pub max_memory: u64,
     /// Largest gRPC message decoded or encoded, in bytes.
     pub max_message: usize,
@@ -77,6 +83,7 @@ impl Default for WorkerConfig {
             listen: DEFAULT_LISTEN.parse().expect("valid default address"),
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             token: None,
+            insecure_no_auth: false,
             tls: None,
             max_memory: default_max_memory(),
             max_message: DEFAULT_MAX_MESSAGE,
@@ -93,6 +100,7 @@ impl std::fmt::Debug for WorkerConfig {
             .field("listen", &self.listen)
             .field("threads", &self.threads)
             .field("token", &self.token.as_ref().map(|_| "<redacted>"))
+            .field("insecure_no_auth", &self.insecure_no_auth)
             .field("tls", &self.tls)
             .field("max_memory", &self.max_memory)
             .field("max_message", &self.max_message)
@@ -103,25 +111,18 @@ impl std::fmt::Debug for WorkerConfig {
     }
 }
 
-/// Three quarters of the physical memory (from /proc/meminfo), or 4 GiB where
-/// that cannot be read.
-pub fn default_max_memory() -> u64 {
-    let total = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("MemTotal:"))
-                .and_then(|l| l.split_whitespace().nth(1))
-                .and_then(|kb| kb.parse::<u64>().ok())
-        })
-        .map(|kb| kb.saturating_mul(1024));
-    match total {
-        Some(t) if t > 0 => t / 4 * 3,
-        _ => 4 << 30,
-    }
-}
-
 impl WorkerConfig {
+    /// Refuses to serve `addr` when it is reachable from other machines and
+    /// no token guards it, unless `--insecure-no-auth` says so.
+    pub fn check_exposure(&self, addr: SocketAddr) -> anyhow::Result<()> {
+        if self.token.is_none() && !addr.ip().is_loopback() && !self.insecure_no_auth {
+            bail!(
+                "refusing to listen on {addr} without a token: anyone who can reach it could use this worker; give --token-file FILE (or --token-stdin), listen on 127.0.0.1, or pass --insecure-no-auth on a network you trust"
+            );
+        }
+        Ok(())
+    }
+
     /// Rejects inconsistent or out-of-range settings, naming what to change.
     pub fn validate(&self) -> anyhow::Result<()> {
         if self.threads == 0 || self.threads > MAX_THREADS {
@@ -130,6 +131,7 @@ impl WorkerConfig {
         if let Some(t) = &self.token {
             texsyn_proto::auth::check_token(t)?;
         }
+        self.check_exposure(self.listen)?;
         if let Some(tls) = &self.tls {
             if tls.cert_pem.is_empty() || tls.key_pem.is_empty() {
                 bail!("TLS needs both a certificate and a key; one of them is empty");
@@ -189,10 +191,44 @@ mod tests {
                 idle_timeout: Some(Duration::ZERO),
                 ..Default::default()
             },
+            WorkerConfig {
+                listen: "0.0.0.0:7878".parse().unwrap(),
+                ..Default::default()
+            },
+            WorkerConfig {
+                listen: "[::]:7878".parse().unwrap(),
+                ..Default::default()
+            },
         ];
         for c in bad {
             assert!(c.validate().is_err(), "{c:?}");
         }
+    }
+
+    #[test]
+    fn public_addresses_need_a_token_or_an_explicit_opt_out() {
+        let public = "10.1.2.3:7878".parse().unwrap();
+        let open = WorkerConfig {
+            listen: public,
+            ..Default::default()
+        };
+        let e = open.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("--insecure-no-auth") && e.contains("--token-file"),
+            "{e}"
+        );
+        WorkerConfig {
+            token: Some("abcdefghijklmnop".into()),
+            ..open.clone()
+        }
+        .validate()
+        .unwrap();
+        WorkerConfig {
+            insecure_no_auth: true,
+            ..open
+        }
+        .validate()
+        .unwrap();
     }
 
     #[test]

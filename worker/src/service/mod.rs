@@ -14,6 +14,7 @@
 //!
 //! [`Engine`]: texsyn_engine::Engine
 
+mod budget;
 mod config;
 mod rpc;
 mod state;
@@ -30,9 +31,9 @@ use tonic::service::InterceptorLayer;
 use tonic::transport::server::TcpIncoming;
 use tonic::transport::{Identity, Server, ServerTlsConfig};
 
+pub use budget::default_max_memory;
 pub use config::{
-    default_max_memory, TlsIdentity, WorkerConfig, DEFAULT_IDLE_TIMEOUT, DEFAULT_LISTEN,
-    DEFAULT_MAX_MESSAGE,
+    TlsIdentity, WorkerConfig, DEFAULT_IDLE_TIMEOUT, DEFAULT_LISTEN, DEFAULT_MAX_MESSAGE,
 };
 pub use rpc::WorkerService;
 
@@ -87,10 +88,11 @@ pub async fn serve(
     let local = listener
         .local_addr()
         .context("the listener has no local address")?;
+    config.check_exposure(local)?;
     if config.token.is_none() && !local.ip().is_loopback() {
         tracing::warn!(
             %local,
-            "listening on a non-loopback address without --token-file: anyone who can reach it may use this worker"
+            "--insecure-no-auth: listening on a non-loopback address without a token; anyone who can reach it may use this worker"
         );
     }
     let pool = rayon::ThreadPoolBuilder::new()

@@ -20,10 +20,18 @@ use texsyn_proto::PROTOCOL_VERSION;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
-use super::state::{Assigned, Shared};
+use super::state::{Assigned, Level, Shared};
 
 /// Upper bound of one encoded `Hit` in a `SearchResult` (tag, two varints, length).
 const HIT_WIRE_BYTES: usize = 24;
+/// A search call's bytes per query component: values and masks as received
+/// (2), and the query batch built from them with its padding (4).
+const BATCH_BYTES_PER_COMPONENT: u64 = 6;
+/// A search call's bytes per answer: the engine's hit and top-k heap entry,
+/// the protobuf hit and its encoding.
+const ANSWER_BYTES_PER_HIT: u64 = 16 + 16 + 24 + HIT_WIRE_BYTES as u64;
+/// A call's fixed buffers (per-thread sweep masks and bookkeeping).
+const CALL_OVERHEAD_BYTES: u64 = 256 << 10;
 
 /// The gRPC service: one per server, cheap to clone.
 #[derive(Clone)]
@@ -70,11 +78,12 @@ impl Worker for WorkerService {
             threads: s.threads as u32,
             load_average: load_average(),
             memory_in_use: s.memory_in_use(),
-            memory_limit: s.max_memory,
+            memory_limit: s.budget.limit(),
             kernel: s.engine.kernel().name().to_string(),
             calibrated_vectors_per_second: s.calibrated(),
             max_message_bytes: s.max_message as u64,
             jobs: s.job_count() as u32,
+            memory_peak: s.budget.peak(),
         }))
     }
 
@@ -90,13 +99,19 @@ impl Worker for WorkerService {
             queries: r.queries,
         }
         .or_default();
-        size.check(self.shared.max_memory).map_err(engine_status)?;
+        size.check(self.shared.budget.limit())
+            .map_err(engine_status)?;
+        let memory = self
+            .shared
+            .budget
+            .reserve(size.bytes().map_err(engine_status)?, "calibration")?;
         let engine = self.shared.engine;
         let c = self
             .shared
             .run(move || calibrate(&engine, size))
             .await?
             .map_err(engine_status)?;
+        drop(memory);
         let (pairs_per_second, seconds) = (c.pairs_per_second, c.seconds);
         let CalibrationSize {
             vectors,
@@ -122,21 +137,24 @@ impl Worker for WorkerService {
             .await?
             .ok_or_else(|| invalid("the LoadLevel stream is empty; send a header first"))?;
         let mut assembly = LevelAssembly::start(first)?;
-        // Worst case before a byte of the planes is held: pixels and
+        // The job's previous level is dropped first, so its memory is free
+        // for the new one (the master never searches a level it replaces).
+        self.shared.begin_level(assembly.job_id())?;
+        // Worst case, reserved before a byte of the planes is held: pixels and
         // defined-masks of both planes, and every sample pixel a reference
         // position (8 bytes each).
-        let bound = assembly.pixels() * 2 + assembly.sample_pixels() * 8;
-        if bound > self.shared.max_memory {
-            return Err(exhausted(format!(
-                "a level of this job may need {bound} bytes, over --max-memory {}",
-                self.shared.max_memory
-            )));
-        }
+        let bound = assembly
+            .pixels()
+            .saturating_mul(2)
+            .saturating_add(assembly.sample_pixels().saturating_mul(8));
+        let memory = self
+            .shared
+            .budget
+            .reserve(bound, &format!("a level of job '{}'", assembly.job_id()))?;
         while let Some(part) = parts.message().await? {
             assembly.add(part)?;
         }
         let r = assembly.finish()?;
-        self.shared.begin_level(&r.job_id)?;
         let t = Instant::now();
         let (job_id, number) = (r.job_id.clone(), r.level);
         let level = self
@@ -144,6 +162,7 @@ impl Worker for WorkerService {
             .run(move || r.locate())
             .await?
             .map_err(engine_status)?;
+        let level = Level::new(level, memory)?;
         let (total, bytes) = (level.total(), level.bytes());
         self.shared.install_level(&job_id, Arc::new(level));
         tracing::info!(
@@ -184,8 +203,10 @@ impl Worker for WorkerService {
             .checked_mul(level.geometry.layout().dense_bytes_per_vector() as u64)
             .and_then(|b| b.checked_add(SLACK as u64))
             .unwrap_or(u64::MAX);
-        let max = self.shared.max_memory;
-        let room = max.saturating_sub(level.bytes());
+        // The job's previous range is dropped first, so its memory is free.
+        self.shared.clear_assignment(&r.job_id, &level);
+        let budget = &self.shared.budget;
+        let room = budget.limit().saturating_sub(budget.used());
         // LBG trains on dense vectors and holds them twice (the space and the
         // partition copies); exact search may gather them from the planes.
         let (storage, need) = if probes > 0 {
@@ -195,13 +216,10 @@ impl Worker for WorkerService {
                 .storage
                 .plan(dense, level.plane_bytes(), Some(room))
         };
-        if need.saturating_add(level.bytes()) > max {
-            return Err(exhausted(format!(
-                "range {}..{} needs {need} bytes of vectors which, with the level's {} bytes, exceeds --max-memory {max}; assign a smaller range",
-                r.start, r.end, level.bytes()
-            )));
-        }
-        self.shared.clear_assignment(&r.job_id, &level);
+        let mut memory = budget.reserve(
+            need,
+            &format!("range {}..{} of job '{}'", r.start, r.end, r.job_id),
+        )?;
         let lv = level.clone();
         let (start, end) = (r.start, r.end);
         let t = Instant::now();
@@ -218,6 +236,7 @@ impl Worker for WorkerService {
         };
         let held = space.storage().name();
         let bytes = space.held_bytes() + lbg.as_ref().map_or(0, |(cb, _)| cb.bytes() as u64);
+        memory.resize(bytes, "the built range")?;
         self.shared.install_assignment(
             &r.job_id,
             Arc::new(Assigned {
@@ -226,6 +245,7 @@ impl Worker for WorkerService {
                 space,
                 bytes,
                 lbg,
+                _memory: memory,
             }),
         )?;
         tracing::info!(
@@ -350,6 +370,16 @@ async fn search_batch(
             shared.max_message
         )));
     }
+    // The call's buffers: the request as received, the batch built from it,
+    // the engine's answers and top-k lists, and the encoded reply.
+    let transient = (expected as u64)
+        .saturating_mul(BATCH_BYTES_PER_COMPONENT)
+        .saturating_add((count * per_query) as u64 * ANSWER_BYTES_PER_HIT)
+        .saturating_add(CALL_OVERHEAD_BYTES);
+    let memory = shared.budget.reserve(
+        transient,
+        &format!("a search batch of {count} queries of job '{}'", b.job_id),
+    )?;
     let engine = shared.engine;
     let job_id = b.job_id;
     let (hits, prune, seconds) = shared
@@ -394,6 +424,7 @@ async fn search_batch(
         .await?
         .map_err(engine_status)?;
     shared.touch(&job_id);
+    drop(memory);
     Ok(proto::SearchResult {
         batch_id: b.batch_id,
         hits: hits.into_iter().map(|h| proto::Hit::from(&h)).collect(),

@@ -10,13 +10,38 @@ use tonic::Status;
 
 use texsyn_engine::{Engine, OwnedLevel, VectorSpace};
 
+use super::budget::{Budget, Reservation};
 use super::config::WorkerConfig;
 
 /// Most jobs held at once; more is RESOURCE_EXHAUSTED until one ends or expires.
 pub(crate) const MAX_JOBS: usize = 64;
 
-/// One pyramid level of a job: the images the master sent and its reference positions.
-pub(crate) type Level = OwnedLevel;
+/// One pyramid level of a job: the images the master sent and its reference
+/// positions, with the memory they hold reserved until the last user drops it.
+#[derive(Debug)]
+pub(crate) struct Level {
+    data: OwnedLevel,
+    _memory: Reservation,
+}
+
+impl Level {
+    /// The level, holding `memory` (resized to what the level really holds).
+    pub(crate) fn new(data: OwnedLevel, mut memory: Reservation) -> Result<Self, Status> {
+        memory.resize(data.bytes(), "the loaded level")?;
+        Ok(Self {
+            data,
+            _memory: memory,
+        })
+    }
+}
+
+impl std::ops::Deref for Level {
+    type Target = OwnedLevel;
+
+    fn deref(&self) -> &OwnedLevel {
+        &self.data
+    }
+}
 
 /// The vectors of the range a job's current level assigned to this worker.
 #[derive(Debug)]
@@ -28,6 +53,8 @@ pub(crate) struct Assigned {
     pub bytes: u64,
     /// LBG search of the range (`lbg_probes` > 0): its codebook and the probes.
     pub lbg: Option<(texsyn_engine::lbg::Codebook, usize)>,
+    /// `bytes`, reserved until the assignment is dropped.
+    pub _memory: Reservation,
 }
 
 #[derive(Debug)]
@@ -48,7 +75,8 @@ pub(crate) struct Shared {
     pub engine: Engine,
     pub pool: Arc<rayon::ThreadPool>,
     pub threads: usize,
-    pub max_memory: u64,
+    /// The worker-wide memory cap (`--max-memory`) and what is reserved against it.
+    pub budget: Arc<Budget>,
     /// How assigned ranges hold their vectors.
     pub storage: texsyn_engine::Storage,
     pub max_message: usize,
@@ -73,7 +101,7 @@ impl Shared {
             engine: Engine::new(config.kernel),
             pool: Arc::new(pool),
             threads: config.threads,
-            max_memory: config.max_memory,
+            budget: Budget::new(config.max_memory),
             storage: config.storage,
             max_message: config.max_message,
             stop,
@@ -109,8 +137,9 @@ impl Shared {
             .store(pairs_per_second.to_bits(), Ordering::Relaxed);
     }
 
+    /// Bytes reserved now, by every job and every call in flight.
     pub(crate) fn memory_in_use(&self) -> u64 {
-        self.jobs().values().map(Job::bytes).sum()
+        self.budget.used()
     }
 
     pub(crate) fn job_count(&self) -> usize {
