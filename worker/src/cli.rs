@@ -89,6 +89,9 @@ pub struct ServeArgs {
     /// Free a job's memory this many seconds after its last call (0 = never).
     #[arg(long, default_value_t = 300)]
     pub idle_timeout: u64,
+    /// Most connections open at once; more are closed at accept.
+    #[arg(long, default_value_t = crate::service::DEFAULT_MAX_CONNECTIONS)]
+    pub max_connections: usize,
     /// Kernel: auto, scalar, avx2, avx512.
     #[arg(long, default_value = "auto")]
     pub kernel: String,
@@ -157,6 +160,10 @@ impl TryFrom<ServeArgs> for WorkerConfig {
             idle_timeout: (a.idle_timeout > 0).then(|| Duration::from_secs(a.idle_timeout)),
             kernel: Kernel::from_name(&a.kernel)?,
             storage: Storage::from_name(&a.vector_store)?,
+            connections: crate::service::ConnectionLimits {
+                max_connections: a.max_connections,
+                ..Default::default()
+            },
         };
         config.validate()?;
         Ok(config)

@@ -9,6 +9,7 @@ use anyhow::{bail, Context};
 use texsyn_engine::{Kernel, Storage};
 
 use super::budget::default_max_memory;
+use super::connections::ConnectionLimits;
 
 /// Default listen address: loopback only, so a worker is never exposed by accident.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:7878";
@@ -22,6 +23,7 @@ const MIN_MAX_MESSAGE: usize = 4 << 10;
 const MAX_MAX_MESSAGE: usize = (2 << 30) - 1;
 const MIN_MAX_MEMORY: u64 = 1 << 20;
 const MAX_THREADS: usize = 4096;
+const MAX_CONNECTIONS: usize = 1 << 16;
 
 /// A PEM certificate chain and private key for TLS.
 #[derive(Clone)]
@@ -75,6 +77,8 @@ pub struct WorkerConfig {
     pub kernel: Kernel,
     /// How assigned ranges hold their vectors.
     pub storage: Storage,
+    /// Connection count and timeouts before a connection is served.
+    pub connections: ConnectionLimits,
 }
 
 impl Default for WorkerConfig {
@@ -90,6 +94,7 @@ impl Default for WorkerConfig {
             idle_timeout: Some(DEFAULT_IDLE_TIMEOUT),
             kernel: Kernel::detect(),
             storage: Storage::Auto,
+            connections: ConnectionLimits::default(),
         }
     }
 }
@@ -107,6 +112,7 @@ impl std::fmt::Debug for WorkerConfig {
             .field("idle_timeout", &self.idle_timeout)
             .field("kernel", &self.kernel)
             .field("storage", &self.storage)
+            .field("connections", &self.connections)
             .finish()
     }
 }
@@ -148,6 +154,16 @@ impl WorkerConfig {
                 "--max-memory {} is below the minimum of {MIN_MAX_MEMORY} bytes",
                 self.max_memory
             );
+        }
+        let c = &self.connections;
+        if c.max_connections == 0 || c.max_connections > MAX_CONNECTIONS {
+            bail!(
+                "--max-connections {} must be in 1..={MAX_CONNECTIONS}",
+                c.max_connections
+            );
+        }
+        if c.first_byte.is_zero() || c.authenticate.is_zero() {
+            bail!("the connection timeouts must be positive");
         }
         if self.idle_timeout == Some(Duration::ZERO) {
             bail!("the idle timeout must be positive (None = never)");

@@ -16,6 +16,7 @@
 
 mod budget;
 mod config;
+mod connections;
 mod rpc;
 mod state;
 
@@ -28,12 +29,14 @@ use texsyn_proto::v1::worker_server::WorkerServer;
 use tokio::net::TcpListener;
 use tonic::codegen::http;
 use tonic::service::InterceptorLayer;
-use tonic::transport::server::TcpIncoming;
 use tonic::transport::{Identity, Server, ServerTlsConfig};
 
 pub use budget::default_max_memory;
 pub use config::{
     TlsIdentity, WorkerConfig, DEFAULT_IDLE_TIMEOUT, DEFAULT_LISTEN, DEFAULT_MAX_MESSAGE,
+};
+pub use connections::{
+    ConnectionLimits, AUTH_TIMEOUT, DEFAULT_MAX_CONNECTIONS, FIRST_BYTE_TIMEOUT,
 };
 pub use rpc::WorkerService;
 
@@ -43,6 +46,15 @@ use texsyn_proto::auth::TokenCheck;
 /// How long open connections (a master's long-lived search streams) get to
 /// finish after the shutdown signal before the server stops anyway.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+/// Most concurrent HTTP/2 streams (calls) on one connection; a client queues
+/// the rest.
+pub const MAX_STREAMS_PER_CONNECTION: u32 = 64;
+/// HTTP/2 pings on idle connections, and how long an answer may take before
+/// the connection is dropped as dead.
+const HTTP2_KEEPALIVE: Duration = Duration::from_secs(10);
+const HTTP2_KEEPALIVE_TIMEOUT: Duration = Duration::from_secs(10);
+/// Longest TLS handshake.
+const TLS_HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// tonic reports a message over the size limit as OUT_OF_RANGE; gRPC says
 /// RESOURCE_EXHAUSTED. No handler here returns OUT_OF_RANGE, so the code is
@@ -114,19 +126,27 @@ pub async fn serve(
     health.set_serving::<WorkerServer<WorkerService>>().await;
 
     let mut builder = Server::builder()
-        .tcp_nodelay(true)
-        .http2_keepalive_interval(Some(Duration::from_secs(30)))
-        .http2_keepalive_timeout(Some(Duration::from_secs(20)));
+        .max_concurrent_streams(MAX_STREAMS_PER_CONNECTION)
+        .http2_keepalive_interval(Some(HTTP2_KEEPALIVE))
+        .http2_keepalive_timeout(Some(HTTP2_KEEPALIVE_TIMEOUT));
     if let Some(tls) = &config.tls {
         let identity = Identity::from_pem(&tls.cert_pem, &tls.key_pem);
         builder = builder
-            .tls_config(ServerTlsConfig::new().identity(identity))
+            .tls_config(
+                ServerTlsConfig::new()
+                    .identity(identity)
+                    .timeout(TLS_HANDSHAKE_TIMEOUT),
+            )
             .context("invalid TLS certificate or key")?;
     }
+    let registry = Arc::new(connections::Registry::default());
     let layers = tower::ServiceBuilder::new()
         .map_response(size_status_in_headers)
         .layer(InterceptorLayer::new(TokenCheck::new(
             config.token.as_deref(),
+        )))
+        .layer(InterceptorLayer::new(connections::MarkAuthenticated(
+            registry.clone(),
         )));
     let router = builder
         .layer(layers)
@@ -141,10 +161,11 @@ pub async fn serve(
         token = config.token.is_some(),
         max_message = config.max_message,
         max_memory = config.max_memory,
+        max_connections = config.connections.max_connections,
         "texsyn worker listening"
     );
 
-    let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
+    let incoming = connections::incoming(listener, config.connections, registry);
     let (signal_tx, signal_rx) = tokio::sync::oneshot::channel::<()>();
     let server = router.serve_with_incoming_shutdown(incoming, async {
         let _ = signal_rx.await;
