@@ -409,6 +409,91 @@ fn worker_stopped_mid_level_is_dropped_by_deadline_and_taken_back_later() {
 }
 
 #[test]
+fn lying_worker_is_caught_dropped_and_never_taken_back() {
+    // Worker b answers every query with another reference at distance 0,
+    // which would win every merge; the master scores each answer itself.
+    let token = Token::new();
+    let a = Worker::with_token(13, &token, 1);
+    let path = token.path.to_str().unwrap().to_string();
+    let b = Worker::start(
+        14,
+        &[
+            "--threads",
+            "1",
+            "--token-file",
+            &path,
+            "--fault-wrong-answers",
+        ],
+    );
+    let out = run(Box::new(connect(options(vec![
+        a.spec(Some(&token)),
+        b.spec(Some(&token)),
+    ]))))
+    .unwrap();
+    assert_same_as_local(&out, "lying worker");
+    let stats = cluster_stats(&out);
+    let baddr = b.address.to_string();
+    let drops: Vec<_> = events(stats, "drop")
+        .into_iter()
+        .filter(|e| e["worker"] == baddr.as_str())
+        .collect();
+    assert_eq!(drops.len(), 1, "dropped once, never taken back: {stats:#}");
+    let reason = drops[0]["reason"].as_str().unwrap();
+    assert!(
+        reason.contains("distance 0") && reason.contains("not trusted again"),
+        "{reason}"
+    );
+    assert_eq!(drops[0]["level"], LEVELS - 1, "caught at its first batch");
+    assert!(
+        !events(stats, "rejoin")
+            .iter()
+            .any(|e| e["worker"] == baddr.as_str()),
+        "a lying worker is not taken back: {stats:#}"
+    );
+    assert_eq!(worker_stats(stats, &baddr)["state"], "dropped");
+}
+
+#[test]
+fn every_worker_missing_its_deadline_retries_once_before_dropping() {
+    // The only worker stops for 1.5 s: its 0.5 s deadline passes, and with
+    // every worker late the batch is asked again with 4× the deadline (2 s),
+    // which it meets once it runs again. Nobody is dropped.
+    let token = Token::new();
+    let a = Worker::with_token(15, &token, 1);
+    let pid = a.pid();
+    let hook: Hook = Box::new(move |p| {
+        if p == Point::Search(1, 1) {
+            sigstop(pid);
+            std::thread::spawn(move || {
+                std::thread::sleep(Duration::from_millis(1500));
+                sigcont(pid);
+            });
+        }
+    });
+    let (backend, _) = Hooked::new(
+        connect(ClusterOptions {
+            deadline_floor: Duration::from_millis(500),
+            require_cluster: true,
+            ..options(vec![a.spec(Some(&token))])
+        }),
+        hook,
+    );
+    let out = run(Box::new(backend));
+    sigcont(pid);
+    let out = out.unwrap();
+    assert_same_as_local(&out, "retry");
+    let stats = cluster_stats(&out);
+    let retries = events(stats, "retry");
+    assert_eq!(retries.len(), 1, "{stats:#}");
+    assert_eq!(retries[0]["level"], 1);
+    assert!(events(stats, "drop").is_empty(), "{stats:#}");
+    assert_eq!(
+        worker_stats(stats, &a.address.to_string())["state"],
+        "active"
+    );
+}
+
+#[test]
 fn worker_much_slower_than_its_calibration_triggers_recalibration_and_repartition() {
     let token = Token::new();
     let a = Worker::with_token(17, &token, 1);

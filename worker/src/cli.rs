@@ -104,6 +104,10 @@ pub struct ServeArgs {
     /// reach the port can then use the worker: only for networks you trust.
     #[arg(long)]
     pub insecure_no_auth: bool,
+    /// Fault injection for tests: answer every search with a wrong reference
+    /// at distance 0 (the master must detect it and drop this worker).
+    #[arg(long, hide = true)]
+    pub fault_wrong_answers: bool,
     /// Read the shared token from the first line of stdin (never from the command line).
     #[arg(long, conflicts_with = "token_file")]
     pub token_stdin: bool,
@@ -160,6 +164,7 @@ impl TryFrom<ServeArgs> for WorkerConfig {
             idle_timeout: (a.idle_timeout > 0).then(|| Duration::from_secs(a.idle_timeout)),
             kernel: Kernel::from_name(&a.kernel)?,
             storage: Storage::from_name(&a.vector_store)?,
+            wrong_answers: a.fault_wrong_answers,
             connections: crate::service::ConnectionLimits {
                 max_connections: a.max_connections,
                 ..Default::default()

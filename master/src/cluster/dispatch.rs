@@ -3,9 +3,13 @@
 //! `Search` stream, with a deadline from its calibration) while the master
 //! searches its own share; the answers are checked and merged
 //! ([`texsyn_engine::merge_answers`]: minimum distance, ties to the lowest
-//! global index). When any worker fails, nothing of the round is used: the
+//! global index). Every answer is checked: the master scores each returned
+//! reference itself, and a worker whose distance is wrong is dropped for the
+//! rest of the run. When any worker fails, nothing of the round is used: the
 //! failed workers are dropped, the level is cut anew and the whole batch is
-//! asked again.
+//! asked again; when every worker missed its deadline (more likely a stall of
+//! the master's machine or network than of all workers), the round is first
+//! asked once more with longer deadlines.
 
 use std::time::Instant;
 
@@ -20,8 +24,13 @@ use super::policy;
 use super::report::EventKind;
 use super::ClusterSearch;
 
-/// One round of a batch: the merged answers, or the workers that failed (slot, reason).
-type Round = std::result::Result<Vec<Hit>, Vec<(usize, ClusterError)>>;
+/// One round of a batch: the merged answers, or the workers that failed
+/// (slot, reason) and how many took part.
+type Round = std::result::Result<Vec<Hit>, (Vec<(usize, ClusterError)>, usize)>;
+
+/// How much longer the deadlines of the one retry are when every worker
+/// missed its deadline.
+const RETRY_STRETCH: f64 = 4.0;
 
 /// A batch as sent: its id and the queries without padding.
 struct Outgoing<'a> {
@@ -70,19 +79,40 @@ impl ClusterSearch {
             masks: &masks,
         };
         let mut rounds = 0;
+        let mut stretch = 1.0;
         loop {
             rounds += 1;
-            let failures = match self.try_batch(&out)? {
+            let (failures, took_part) = match self.try_batch(&out, stretch)? {
                 Ok(hits) => return Ok(hits),
-                Err(failures) => failures,
+                Err(f) => f,
             };
+            let all_missed = took_part > 0
+                && failures.len() == took_part
+                && failures
+                    .iter()
+                    .all(|(_, e)| matches!(e, ClusterError::Deadline(_)));
+            if all_missed && stretch == 1.0 {
+                stretch = RETRY_STRETCH;
+                for &(i, _) in &failures {
+                    // Their streams may still carry the late answers.
+                    self.slots[i].stream = None;
+                }
+                self.event(
+                    EventKind::Retry,
+                    None,
+                    format!(
+                        "every worker missed its deadline; batch {id} asked again with {RETRY_STRETCH}× the deadlines"
+                    ),
+                );
+                continue;
+            }
             let mut names = Vec::new();
             for (i, reason) in failures {
                 names.push(self.slots[i].spec.address.clone());
                 self.drop_worker(i, reason);
             }
-            // Each round drops at least one worker, so this ends.
-            debug_assert!(rounds <= self.slots.len() + 1);
+            // Each round but the one retry drops at least one worker, so this ends.
+            debug_assert!(rounds <= self.slots.len() + 2);
             self.repartition(
                 EventKind::Repartition,
                 format!("dropped {}; batch {id} asked again", names.join(", ")),
@@ -118,8 +148,15 @@ impl ClusterSearch {
     }
 
     /// Slot `i`'s part of the batch: the chunks under its message limit, its
-    /// range and its deadline from `now`.
-    fn part_for(&self, i: usize, out: &Outgoing, expected: f64, now: Instant) -> conn::Part {
+    /// range and its deadline from `now` (`stretch` × the usual one).
+    fn part_for(
+        &mut self,
+        i: usize,
+        out: &Outgoing,
+        expected: f64,
+        stretch: f64,
+        now: Instant,
+    ) -> conn::Part {
         let s = &self.slots[i];
         let (n, dims) = (out.batch.len(), out.batch.layout().dims());
         let lv = self.level.as_ref().map_or(0, |l| l.data.level);
@@ -128,8 +165,10 @@ impl ClusterSearch {
                 expected,
                 self.opts.deadline_factor,
                 self.opts.deadline_floor,
-            );
+            )
+            .mul_f64(stretch);
         let per = queries_per_chunk(s.info.as_ref().map_or(4 << 20, |x| x.max_message), dims);
+        let first_chunk = self.next_chunk;
         let chunks: Vec<pb::SearchBatch> = (0..n)
             .step_by(per)
             .enumerate()
@@ -140,7 +179,7 @@ impl ClusterSearch {
                 pb::SearchBatch {
                     job_id: self.opts.job_id.clone(),
                     level: lv as u32,
-                    batch_id: out.id * 1024 + k as u64,
+                    batch_id: first_chunk.wrapping_add(k as u64),
                     top_k: 1,
                     count: (q1 - q0) as u32,
                     values: out.values[q0 * dims..q1 * dims].to_vec(),
@@ -151,6 +190,7 @@ impl ClusterSearch {
                 }
             })
             .collect();
+        self.next_chunk = self.next_chunk.wrapping_add(chunks.len() as u64);
         conn::Part {
             chunks,
             range: s.range.clone(),
@@ -179,15 +219,20 @@ impl ClusterSearch {
 
     /// Searches one batch on the current partition. Err(failures) when any
     /// worker failed: nothing of this round is used.
-    fn try_batch(&mut self, out: &Outgoing) -> Result<Round> {
+    fn try_batch(&mut self, out: &Outgoing, stretch: f64) -> Result<Round> {
         let level = self.level.as_ref().context("search before load_level")?;
         let cost = policy::pair_cost(level.layout().stride(), self.opts.calibration.dims);
         let n = out.batch.len();
         let participants = self.slots_where(|s| s.active() && s.len() > 0);
         let failures = self.open_streams(&participants);
         if !failures.is_empty() {
-            return Ok(Err(failures));
+            return Ok(Err((failures, participants.len())));
         }
+        // No worker waits longer than a share searched at the cap's speed
+        // (a fraction of the typical participant's, or the master's own).
+        let mut rates: Vec<f64> = participants.iter().map(|&i| self.slots[i].rate).collect();
+        rates.extend(self.master.rate);
+        let floor_rate = policy::deadline_rate_floor(&rates);
 
         // Send every worker its part; the tasks run while the master searches its own share.
         let now = Instant::now();
@@ -195,9 +240,9 @@ impl ClusterSearch {
         let mut expected = Vec::with_capacity(participants.len());
         for &i in &participants {
             let s = &self.slots[i];
-            let exp = policy::expected_seconds(s.len(), n, cost, s.rate);
-            let part = self.part_for(i, out, exp, now);
+            let exp = policy::expected_seconds(s.len(), n, cost, s.rate.max(floor_rate));
             let span = tracing::debug_span!("worker", address = %s.spec.address, batch = out.id);
+            let part = self.part_for(i, out, exp, stretch, now);
             let stream = self.slots[i].stream.take().expect("opened above");
             handles.push(
                 self.rt()
@@ -217,16 +262,19 @@ impl ClusterSearch {
         let mut failures = Vec::new();
         let mut slow: Option<String> = None;
         for ((&i, exp), a) in participants.iter().zip(expected).zip(answers) {
-            match a {
-                Ok(a) => match self.take_answer(i, a, n, cost, exp, &mut slow) {
-                    Ok(hits) => parts.push(hits),
-                    Err(e) => failures.push((i, e)),
-                },
-                Err(e) => failures.push((i, ClusterError::Task(e.to_string()))),
+            let checked = match a {
+                Ok(a) => self
+                    .take_answer(i, a, n, cost, exp, &mut slow)
+                    .and_then(|hits| self.check_answers(out.batch, hits)),
+                Err(e) => Err(ClusterError::Task(e.to_string())),
+            };
+            match checked {
+                Ok(hits) => parts.push(hits),
+                Err(e) => failures.push((i, e)),
             }
         }
         if !failures.is_empty() {
-            return Ok(Err(failures));
+            return Ok(Err((failures, participants.len())));
         }
         let refs: Vec<&[Hit]> = parts.iter().map(Vec::as_slice).collect();
         let merged =
@@ -269,6 +317,36 @@ impl ClusterSearch {
                 a.wall * 1e3,
                 exp * 1e3
             ));
+        }
+        Ok(hits)
+    }
+
+    /// Scores every reference a worker returned against its query, from the
+    /// level the master holds (O(dims) per answer): an answer is accepted
+    /// only with the distance its reference really has, so a faulty or lying
+    /// worker cannot win the merge with a made-up distance.
+    fn check_answers(
+        &self,
+        batch: &QueryBatch,
+        hits: Vec<Hit>,
+    ) -> std::result::Result<Vec<Hit>, ClusterError> {
+        let Some(level) = self.level.as_ref() else {
+            return Ok(hits);
+        };
+        let mut scorer = texsyn_engine::Scorer::new(&level.data);
+        for (q, h) in hits.iter().enumerate() {
+            if h.is_none() {
+                continue;
+            }
+            let actual = scorer.distance(h.index, batch, q);
+            if actual != Some(h.dist) {
+                return Err(ClusterError::WrongAnswer {
+                    query: q,
+                    index: h.index,
+                    claimed: h.dist,
+                    actual: actual.unwrap_or(u64::MAX),
+                });
+            }
         }
         Ok(hits)
     }

@@ -4,6 +4,7 @@
 //! cluster-wide errors end the run.
 
 /// A cluster error. The texts are those of the run report's `reason` fields.
+
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ClusterError {
     /// A worker address that is not `host:port`, or a token that cannot be sent.
@@ -55,6 +56,17 @@ pub enum ClusterError {
     BadAnswer(String),
     #[error("search task failed: {0}")]
     Task(String),
+    /// An answer whose distance is not the distance of the vector it names
+    /// (the master scores every returned index itself).
+    #[error(
+        "answered query {query} with reference {index} at distance {claimed}, but that reference is at distance {actual}"
+    )]
+    WrongAnswer {
+        query: usize,
+        index: u64,
+        claimed: u64,
+        actual: u64,
+    },
     // Cluster-wide: the run cannot go on.
     #[error("no workers given; add --workers, --hosts or --local-workers")]
     NoWorkers,
@@ -70,6 +82,14 @@ pub enum ClusterError {
 
 /// A result with a [`ClusterError`].
 pub type ClusterResult<T> = std::result::Result<T, ClusterError>;
+
+impl ClusterError {
+    /// The worker answered something that cannot be right: malformed, out of
+    /// its range, or with a wrong distance. It is not used again in the run.
+    pub fn is_untrustworthy(&self) -> bool {
+        matches!(self, Self::WrongAnswer { .. } | Self::BadAnswer(_))
+    }
+}
 
 #[cfg(test)]
 mod tests {

@@ -34,6 +34,8 @@ pub(super) struct Slot {
     pub down_reason: Option<String>,
     /// Last non-empty share of a level.
     pub last_share: f64,
+    /// Returned a wrong answer: never used again in this run.
+    pub distrusted: bool,
     /// This level's searched pairs (in calibration units) and reported seconds.
     pub level_pairs: f64,
     pub level_seconds: f64,
@@ -54,6 +56,7 @@ impl Slot {
             drops: 0,
             down_reason: None,
             last_share: 0.0,
+            distrusted: false,
             level_pairs: 0.0,
             level_seconds: 0.0,
         }
@@ -97,7 +100,12 @@ impl ClusterSearch {
     /// Drops a worker: its stream and client are closed and its range will be
     /// re-spread by the next partition.
     pub(super) fn drop_worker(&mut self, i: usize, reason: ClusterError) {
-        let reason = reason.to_string();
+        let distrust = reason.is_untrustworthy();
+        let reason = if distrust {
+            format!("{reason}; the worker is not trusted again in this run")
+        } else {
+            reason.to_string()
+        };
         let s = &mut self.slots[i];
         tracing::warn!(worker = %s.spec.address, %reason, "dropping worker");
         s.client = None;
@@ -106,6 +114,7 @@ impl ClusterSearch {
         s.range = 0..0;
         s.strikes = 0;
         s.drops += 1;
+        s.distrusted |= distrust;
         s.down_reason = Some(reason.clone());
         let addr = s.spec.address.clone();
         self.event(EventKind::Drop, Some(addr), reason);
@@ -157,7 +166,7 @@ impl ClusterSearch {
 
     /// Connects (Info, then Calibrate) every worker not in use.
     pub(super) fn join_workers(&mut self) {
-        let todo = self.slots_where(|s| !s.active());
+        let todo = self.slots_where(|s| !s.active() && !s.distrusted);
         if todo.is_empty() {
             return;
         }

@@ -196,6 +196,8 @@ pub struct ClusterSearch {
     level: Option<LevelState>,
     epoch: u64,
     next_batch: u64,
+    /// Id of the next search message (unique within the run).
+    next_chunk: u64,
     /// Batch being searched (for events).
     current_batch: Option<u64>,
     batches_since_recalibration: u64,
@@ -238,6 +240,7 @@ impl ClusterSearch {
             level: None,
             epoch: 0,
             next_batch: 0,
+            next_chunk: 0,
             current_batch: None,
             batches_since_recalibration: 0,
             events: Vec::new(),

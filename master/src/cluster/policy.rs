@@ -94,6 +94,33 @@ pub fn expected_seconds(len: u64, queries: usize, cost: f64, rate: f64) -> f64 {
     len as f64 * queries as f64 * cost / rate.max(1.0)
 }
 
+/// The slowest speed a deadline is computed from: a participant that
+/// calibrated slower than this fraction of the median speed of the
+/// participants (the master's own included) is given the time of this speed,
+/// so a worker that calibrates slowly and then hangs cannot stretch a batch's
+/// deadline without bound.
+pub const DEADLINE_RATE_FRACTION: f64 = 0.25;
+
+/// [`DEADLINE_RATE_FRACTION`] × the median of the positive finite `rates`
+/// (0 when there are none).
+pub fn deadline_rate_floor(rates: &[f64]) -> f64 {
+    let mut r: Vec<f64> = rates
+        .iter()
+        .copied()
+        .filter(|x| x.is_finite() && *x > 0.0)
+        .collect();
+    if r.is_empty() {
+        return 0.0;
+    }
+    r.sort_by(f64::total_cmp);
+    let median = if r.len() % 2 == 1 {
+        r[r.len() / 2]
+    } else {
+        (r[r.len() / 2 - 1] + r[r.len() / 2]) / 2.0
+    };
+    median * DEADLINE_RATE_FRACTION
+}
+
 /// Time a worker gets for a batch: its expected time × `factor` + `floor`
 /// (a stopped worker is detected by this, ARCHITECTURE §4.3).
 pub fn batch_deadline(expected: f64, factor: f64, floor: Duration) -> Duration {
@@ -194,6 +221,20 @@ pub fn rebalance(parts: &[Measured], level: LevelProgress) -> Option<Vec<f64>> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn slow_calibrations_do_not_stretch_deadlines_without_bound() {
+        assert_eq!(deadline_rate_floor(&[]), 0.0);
+        assert_eq!(deadline_rate_floor(&[f64::NAN, -1.0, 0.0]), 0.0);
+        assert_eq!(deadline_rate_floor(&[4e9]), 1e9);
+        assert_eq!(deadline_rate_floor(&[1.0, 4e9, 4e9]), 1e9);
+        assert_eq!(deadline_rate_floor(&[2e9, 6e9]), 1e9);
+        // A worker calibrated at 1 pair/s next to 4e9 pairs/s peers is given
+        // the time of 1e9 pairs/s: seconds, not centuries.
+        let floor = deadline_rate_floor(&[1.0, 4e9, 4e9, 4e9]);
+        let exp = expected_seconds(1_000_000, 256, 1.0, 1.0f64.max(floor));
+        assert!(batch_deadline(exp, 8.0, Duration::from_secs(2)) < Duration::from_secs(5));
+    }
+
     use super::*;
 
     fn check_cover(total: u64, parts: &[Range<u64>]) {

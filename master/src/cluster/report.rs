@@ -25,6 +25,9 @@ pub enum EventKind {
     Recalibrate,
     /// No worker left: the master searches the level itself.
     Fallback,
+    /// Every worker missed its deadline: the batch was asked again with
+    /// longer deadlines before any worker was dropped.
+    Retry,
 }
 
 /// One entry of the run report's event list.
@@ -176,6 +179,7 @@ mod tests {
             (EventKind::Repartition, "repartition"),
             (EventKind::Recalibrate, "recalibrate"),
             (EventKind::Fallback, "fallback"),
+            (EventKind::Retry, "retry"),
         ];
         for (k, name) in kinds {
             assert_eq!(serde_json::to_value(k).unwrap(), name);

@@ -66,24 +66,13 @@ impl OwnedLevel {
     /// a tight bound to prune against. The candidates are used up: they are
     /// cleared, so no search scores them again.
     pub fn bound_queries(&self, queries: &mut QueryBatch) {
-        let layout = self.geometry.layout();
-        let sample = self.sample();
-        let (mut raw, mut padded) = (vec![0u8; layout.dims()], vec![0u8; layout.stride()]);
+        let mut scorer = Scorer::new(self);
         for q in 0..queries.len() {
             let mut best = queries.bound(q);
             for &c in queries.candidates(q) {
-                let Some([x, y]) = self.positions.get(c) else {
+                let Some(dist) = scorer.distance(c, queries, q) else {
                     continue;
                 };
-                gather(&sample, &self.geometry, x as usize, y as usize, &mut raw);
-                layout.scatter(&raw, &mut padded);
-                let dist = distance(
-                    &layout,
-                    &self.params,
-                    &padded,
-                    queries.values(q),
-                    queries.mask(q),
-                );
                 let hit = Hit { index: c, dist };
                 if hit.key() < best.key() {
                     best = hit;
@@ -104,5 +93,49 @@ impl OwnedLevel {
         self.fine.bytes()
             + self.parent.as_ref().map_or(0, OwnedPlane::bytes)
             + self.positions.bytes()
+    }
+}
+
+/// Scores single reference vectors of a level against queries, gathered from
+/// the planes with the scalar reference distance: the coherence bounds, and
+/// the master's check of every answer a worker returns (ARCHITECTURE §4.3).
+pub struct Scorer<'a> {
+    level: &'a OwnedLevel,
+    sample: Sample<'a>,
+    raw: Vec<u8>,
+    padded: Vec<u8>,
+}
+
+impl<'a> Scorer<'a> {
+    pub fn new(level: &'a OwnedLevel) -> Self {
+        let layout = level.geometry.layout();
+        Self {
+            level,
+            sample: level.sample(),
+            raw: vec![0; layout.dims()],
+            padded: vec![0; layout.stride()],
+        }
+    }
+
+    /// The distance of reference vector `index` to query `q` of `queries`;
+    /// None for an index outside the level.
+    pub fn distance(&mut self, index: u64, queries: &QueryBatch, q: usize) -> Option<u64> {
+        let [x, y] = self.level.positions.get(index)?;
+        let layout = self.level.geometry.layout();
+        gather(
+            &self.sample,
+            &self.level.geometry,
+            x as usize,
+            y as usize,
+            &mut self.raw,
+        );
+        layout.scatter(&self.raw, &mut self.padded);
+        Some(distance(
+            &layout,
+            &self.level.params,
+            &self.padded,
+            queries.values(q),
+            queries.mask(q),
+        ))
     }
 }

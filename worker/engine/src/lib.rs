@@ -27,7 +27,7 @@ pub use error::{EngineError, Result};
 pub use kernel::{distance, Kernel, Params, PruneStats};
 pub use layout::{Geometry, Layout, Metric, Weights};
 pub use lbg::{Codebook, LbgConfig, LbgStats};
-pub use level::OwnedLevel;
+pub use level::{OwnedLevel, Scorer};
 pub use merge::{check_part, merge_answers, merge_best, merge_topk, with_bounds, Hit};
 pub use plane::{OwnedPlane, Plane, Sample};
 pub use positions::Positions;

@@ -79,6 +79,9 @@ pub struct WorkerConfig {
     pub storage: Storage,
     /// Connection count and timeouts before a connection is served.
     pub connections: ConnectionLimits,
+    /// Fault injection for tests: answer every search with a made-up
+    /// in-range reference at distance 0 (`--fault-wrong-answers`).
+    pub wrong_answers: bool,
 }
 
 impl Default for WorkerConfig {
@@ -95,6 +98,7 @@ impl Default for WorkerConfig {
             kernel: Kernel::detect(),
             storage: Storage::Auto,
             connections: ConnectionLimits::default(),
+            wrong_answers: false,
         }
     }
 }
@@ -113,6 +117,7 @@ impl std::fmt::Debug for WorkerConfig {
             .field("kernel", &self.kernel)
             .field("storage", &self.storage)
             .field("connections", &self.connections)
+            .field("wrong_answers", &self.wrong_answers)
             .finish()
     }
 }

@@ -382,6 +382,7 @@ async fn search_batch(
     )?;
     let engine = shared.engine;
     let job_id = b.job_id;
+    let held = a.space.start()..a.space.end();
     let (hits, prune, seconds) = shared
         .run(
             move || -> texsyn_engine::Result<(Vec<Hit>, Option<PruneStats>, f64)> {
@@ -425,6 +426,11 @@ async fn search_batch(
         .map_err(engine_status)?;
     shared.touch(&job_id);
     drop(memory);
+    let hits = if shared.wrong_answers {
+        lie(hits, held)
+    } else {
+        hits
+    };
     Ok(proto::SearchResult {
         batch_id: b.batch_id,
         hits: hits.into_iter().map(|h| proto::Hit::from(&h)).collect(),
@@ -432,6 +438,26 @@ async fn search_batch(
         seconds,
         prune: prune.as_ref().map(prune_to_proto),
     })
+}
+
+/// Fault injection: each answer moved to another reference of the range, at
+/// distance 0, which would win any merge that does not check it.
+fn lie(hits: Vec<Hit>, range: Range<u64>) -> Vec<Hit> {
+    let len = range.end - range.start;
+    if len < 2 {
+        return hits;
+    }
+    hits.into_iter()
+        .enumerate()
+        .map(|(q, h)| {
+            let index = if h.is_none() {
+                range.start + q as u64 % len
+            } else {
+                range.start + (h.index - range.start + 1) % len
+            };
+            Hit { index, dist: 0 }
+        })
+        .collect()
 }
 
 /// The vectors of `range` of the level, or (with `probes` > 0) the LBG

@@ -80,6 +80,8 @@ pub(crate) struct Shared {
     /// How assigned ranges hold their vectors.
     pub storage: texsyn_engine::Storage,
     pub max_message: usize,
+    /// Fault injection: answers are made up (see [`WorkerConfig::wrong_answers`]).
+    pub wrong_answers: bool,
     /// Turns true when the server shuts down; search streams end on it.
     pub stop: tokio::sync::watch::Receiver<bool>,
     jobs: Mutex<HashMap<String, Job>>,
@@ -104,6 +106,7 @@ impl Shared {
             budget: Budget::new(config.max_memory),
             storage: config.storage,
             max_message: config.max_message,
+            wrong_answers: config.wrong_answers,
             stop,
             jobs: Mutex::new(HashMap::new()),
             calibrated: AtomicU64::new(0f64.to_bits()),
