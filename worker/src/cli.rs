@@ -116,7 +116,9 @@ pub fn parse_seconds(s: &str, min: f64, max: f64) -> Result<f64, String> {
     let v: f64 = s.trim().parse().map_err(|_| {
         format!("'{s}' is not a number of seconds; give one between {min} and {max}")
     })?;
-    seconds(v, min, max).map(|_| v)
+    seconds(v, min, max)
+        .map(|_| v)
+        .map_err(|_| format!("{s} seconds is out of range; give a number between {min} and {max}"))
 }
 
 /// `v` seconds as a [`Duration`] when finite and in `min..=max`.

@@ -159,10 +159,12 @@ pub fn check_host(spec: &LaunchSpec) -> Result<HostReport> {
         "nproc; cat /proc/loadavg; grep MemAvailable /proc/meminfo; {} --version",
         shell_quote(&spec.binary)
     );
-    let child = ssh_command(spec, &remote)
-        .stdin(Stdio::null())
+    let mut cmd = ssh_command(spec, &remote);
+    cmd.stdin(Stdio::null())
         .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
+        .stderr(Stdio::piped());
+    end_with_parent(&mut cmd);
+    let child = cmd
         .spawn()
         .context("cannot run ssh (is the OpenSSH client installed?)")?;
     let out =
