@@ -968,3 +968,97 @@ fn sigint_and_sigterm_remove_temporaries() {
     interrupted_run_cleans_up("-INT", 130);
     interrupted_run_cleans_up("-TERM", 143);
 }
+
+/// A worker stand-in for `--worker-binary`: records its pid in `$FAKE_PIDS`,
+/// prints a listening line (nothing listens there, so the run searches
+/// locally) and sleeps.
+#[cfg(unix)]
+fn fake_worker(dir: &Path) -> std::path::PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let p = dir.join("fake-worker.sh");
+    std::fs::write(
+        &p,
+        "#!/bin/sh\necho $$ > \"$FAKE_PIDS/$$\"\necho \"listening on 127.0.0.2:$((1024 + $$ % 60000))\"\nexec sleep 300\n",
+    )
+    .unwrap();
+    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
+    p
+}
+
+/// True while `pid` runs (a zombie, or no such process, does not).
+#[cfg(unix)]
+fn alive(pid: &str) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/status")).is_ok_and(|s| {
+        s.lines()
+            .any(|l| l.starts_with("State:") && !l.contains('Z'))
+    })
+}
+
+#[cfg(unix)]
+#[test]
+fn sigint_stops_local_workers_and_removes_their_token_directory() {
+    use std::process::{Command, Stdio};
+    let dir = tempfile::tempdir().unwrap();
+    let (tmp, pids) = (dir.path().join("tmp"), dir.path().join("pids"));
+    std::fs::create_dir(&tmp).unwrap();
+    std::fs::create_dir(&pids).unwrap();
+    let worker = fake_worker(dir.path());
+    let out = dir.path().join("out.png");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_texsyn"))
+        .args([
+            "synth",
+            s(&assets().join("gravel_gray_500.png")),
+            "-o",
+            s(&out),
+            "--size",
+            "2000x2000",
+            "-q",
+            "--local-workers",
+            "2",
+            "--worker-binary",
+            s(&worker),
+        ])
+        .env("TMPDIR", &tmp)
+        .env("FAKE_PIDS", &pids)
+        .env("RUST_LOG", "error")
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while std::fs::read_dir(&pids).unwrap().count() < 2 {
+        assert!(start.elapsed().as_secs() < 30, "the workers never started");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(1000));
+    assert_eq!(
+        std::fs::read_dir(&tmp).unwrap().count(),
+        1,
+        "the token directory"
+    );
+    assert!(child.try_wait().unwrap().is_none(), "the run ended early");
+    let sent = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert_eq!(
+        std::fs::read_dir(&tmp).unwrap().count(),
+        0,
+        "token directory left"
+    );
+    let workers: Vec<String> = std::fs::read_dir(&pids)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(workers.len(), 2);
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    for pid in &workers {
+        assert!(!alive(pid), "worker {pid} still runs");
+    }
+    assert!(!out.exists());
+    assert!(temp_files(dir.path()).is_empty());
+}
