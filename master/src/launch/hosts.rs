@@ -88,8 +88,12 @@ pub fn read_hosts_file_launch(
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read the hosts file {}", path.display()))?;
     let parsed: HostsFile = toml::from_str(&text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|r| format!(" (line {})", text.as_bytes()[..r.start.min(text.len())].iter().filter(|&&b| b == b'\n').count() + 1))
+            .unwrap_or_default();
         anyhow::anyhow!(
-            "the hosts file {} is not a list of [[worker]] entries with address = \"host:port\" and the optional keys token_file, ssh, binary, threads, port, ssh_options: {}",
+            "the hosts file {}{line}: {}; it must be a list of [[worker]] entries with address = \"host:port\" and the optional keys token_file, ssh, binary, threads, port, ssh_options",
             path.display(),
             crate::cli::one_line(e.message())
         )
@@ -220,13 +224,14 @@ mod tests {
     fn unknown_keys_are_named() {
         let dir = tempfile::tempdir().unwrap();
         let hosts = dir.path().join("hosts.toml");
-        for (text, key) in [
+        for (text, key, line) in [
             (
                 "[[worker]]\naddress = \"a:1\"\nssh = \"me@a\"\nssh_option = [\"-F\", \"c\"]\n",
                 "ssh_option",
+                4,
             ),
-            ("[[worker]]\naddress = \"a:1\"\ntoken = \"x\"\n", "token"),
-            ("port = 1\n[[worker]]\naddress = \"a:1\"\n", "port"),
+            ("[[worker]]\naddress = \"a:1\"\ntoken = \"x\"\n", "token", 3),
+            ("port = 1\n[[worker]]\naddress = \"a:1\"\n", "port", 1),
         ] {
             std::fs::write(&hosts, text).unwrap();
             for launch in [false, true] {
@@ -234,7 +239,8 @@ mod tests {
                     "{:#}",
                     read_hosts_file_launch(&hosts, None, launch).unwrap_err()
                 );
-                assert!(e.contains(&format!("`{key}`")), "{e}");
+                assert!(e.contains(&format!("unknown field `{key}`")), "{e}");
+                assert!(e.contains(&format!("(line {line})")), "{e}");
                 assert!(!e.contains('\n'), "one line: {e}");
             }
         }
