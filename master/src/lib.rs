@@ -8,13 +8,15 @@
 //!   [`search::SearchBackend`]; [`launch`] starts or finds the workers.
 //! - [`imaging`] (images in and out, atomic writes) and [`ycbcr`] (the one
 //!   BT.601 conversion): shared by every method.
-//! - [`cli`]: the command line.
+//! - [`cli`]: the command line; [`cleanup`]: the temporaries removed on
+//!   SIGINT/SIGTERM.
 //!
 //! A new synthesis method goes into its own module beside [`block`] (for the
 //! coming ones: `tiles`, `parallel`, `procedural`), reusing `imaging`, `ycbcr`,
 //! the search backends and, where it fits, `block::pyramid`.
 
 pub mod block;
+pub mod cleanup;
 pub mod cli;
 pub mod cluster;
 pub mod imaging;

@@ -341,3 +341,724 @@ fn vector_stores_give_the_same_image() {
     // 500² × 192 B of dense vectors is over 10 MB; the planes are 0.3 MB.
     assert_eq!(dense, run("auto.png", &["--max-memory", "10"]));
 }
+
+/// Runs `texsyn` with a time limit (a hang fails the test instead of
+/// blocking it).
+fn texsyn_within(args: &[&str], limit: std::time::Duration) -> std::process::Output {
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_texsyn"))
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run texsyn");
+    let start = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{args:?} still runs after {limit:?}");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// The `.tmp-` files in `dir`.
+fn temp_files(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".tmp-"))
+        .collect()
+}
+
+/// A run that must be refused: exit code 1, exactly one line on stderr (the
+/// error, with every expected word), no panic, no `.tmp-` file next to `out`,
+/// and `out`, created beforehand with known bytes, unchanged.
+fn refuses(args: &[&str], out: &Path, words: &[&str]) {
+    const KEEP: &[u8] = b"an earlier result that must survive";
+    std::fs::write(out, KEEP).unwrap();
+    let o = texsyn_within(args, std::time::Duration::from_secs(120));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{args:?}: stderr: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "{args:?}: not one line: {err}");
+    let line = lines[0];
+    assert!(line.starts_with("texsyn: error: "), "{args:?}: {line}");
+    assert!(!line.contains("panicked"), "{args:?}: {line}");
+    for w in words {
+        assert!(
+            line.to_lowercase().contains(&w.to_lowercase()),
+            "{args:?}: '{line}' lacks '{w}'"
+        );
+    }
+    assert_eq!(
+        std::fs::read(out).unwrap(),
+        KEEP,
+        "{args:?} clobbered {out:?}"
+    );
+    let dir = out.parent().unwrap();
+    assert!(temp_files(dir).is_empty(), "{args:?} left temp files");
+}
+
+#[test]
+fn overflowing_numbers_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.png");
+    let sample = assets().join("brick_color_96.png");
+    let (o, sm) = (s(&out), s(&sample));
+    let max = "18446744073709551615";
+    let ext = |extra: &[&'static str]| {
+        let mut a = vec!["extend", sm, "-o", o, "--size", "200x200"];
+        a.extend_from_slice(extra);
+        a
+    };
+    refuses(
+        &ext(&["--position", "18446744073709551615,0"]),
+        &out,
+        &["--position", "x 18446744073709551615"],
+    );
+    refuses(
+        &ext(&["--position", "0,18446744073709551615"]),
+        &out,
+        &["y 18446744073709551615"],
+    );
+    refuses(
+        &ext(&["--position", "18446744073709551616,0"]),
+        &out,
+        &["not a whole number"],
+    );
+    refuses(&ext(&["--position=-1,0"]), &out, &["--position"]);
+    refuses(
+        &ext(&["--position", "150,0"]),
+        &out,
+        &["outside the 200×200 canvas", "X ≤ 104"],
+    );
+    refuses(
+        &["synth", sm, "-o", o, "--size", &format!("{max}x{max}")],
+        &out,
+        &["too large", "--size"],
+    );
+    refuses(
+        &["synth", sm, "-o", o, "--size", "4294967296x4294967296"],
+        &out,
+        &["too large", "--size"],
+    );
+    for (flag, word) in [
+        ("--levels", "levels"),
+        ("--batch", "batch"),
+        ("--block", "block size"),
+        ("--neighbourhood", "neighbourhood"),
+        ("--parent-window", "parent window"),
+        ("--chroma-blur", "chroma blur"),
+        ("--threads", "--threads"),
+        ("--lbg-probes", "--lbg-probes"),
+    ] {
+        refuses(
+            &["synth", sm, "-o", o, "--size", "64x64", flag, max],
+            &out,
+            &[word],
+        );
+    }
+    refuses(
+        &[
+            "synth",
+            sm,
+            "-o",
+            o,
+            "--size",
+            "64x64",
+            "--level-sample",
+            &format!("{max}0=x.png"),
+        ],
+        &out,
+        &["--level-sample"],
+    );
+    for t in ["nan", "inf", "-inf", "-1", "0", "1e300", "NaN", "x"] {
+        let timeout = format!("--timeout={t}");
+        refuses(
+            &["cluster", "status", "--workers", "127.0.0.1:1", &timeout],
+            &out,
+            &["--timeout", &format!("'{t}'"), "between 0.1 and 600"],
+        );
+        let worker_timeout = format!("--worker-timeout={t}");
+        refuses(
+            &[
+                "synth",
+                sm,
+                "-o",
+                o,
+                "--size",
+                "64x64",
+                "--workers",
+                "127.0.0.1:1",
+                &worker_timeout,
+            ],
+            &out,
+            &["--worker-timeout", "between 0.01 and 3600"],
+        );
+    }
+    refuses(
+        &[
+            "synth",
+            sm,
+            "-o",
+            o,
+            "--size",
+            "64x64",
+            "--workers",
+            "127.0.0.1:1",
+            "--local-worker-threads",
+            "1",
+        ],
+        &out,
+        &["--local-worker-threads"],
+    );
+    // A usage error is one line too.
+    refuses(&["synth", sm, "-o", o], &out, &["--size"]);
+    refuses(
+        &["synth", sm, "-o", o, "--size", "64x64", "--bogus"],
+        &out,
+        &["--bogus"],
+    );
+}
+
+#[test]
+fn output_paths_are_checked_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("out.png");
+    let o = s(&out);
+    let sample = d.join("sample.png");
+    std::fs::copy(assets().join("brick_color_96.png"), &sample).unwrap();
+    let sm = s(&sample);
+    let synth = |extra: &[&str]| {
+        let mut a = vec!["synth", sm, "-o", o, "--size", "64x64"];
+        a.extend_from_slice(extra);
+        a.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let run = |args: Vec<String>, keep: &Path, words: &[&str]| {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        refuses(&args, keep, words);
+    };
+    run(
+        synth(&["--copy-map", o]),
+        &out,
+        &["-o and --copy-map", "own file"],
+    );
+    run(synth(&["--report", o]), &out, &["-o and --report"]);
+    let other = format!("{}/./sub/../out.png", d.display());
+    std::fs::create_dir(d.join("sub")).unwrap();
+    run(synth(&["--report", &other]), &out, &["-o and --report"]);
+    let map = d.join("map.png");
+    run(
+        synth(&["--copy-map", s(&map), "--report", s(&map)]),
+        &map,
+        &["--copy-map and --report"],
+    );
+    // Level images would overwrite an output or an input.
+    let levels = d.join("levels");
+    let level0 = levels.join("level0.png");
+    std::fs::create_dir(&levels).unwrap();
+    run(
+        vec![
+            "synth".into(),
+            sm.into(),
+            "-o".into(),
+            s(&level0).into(),
+            "--size".into(),
+            "64x64".into(),
+            "--levels-dir".into(),
+            s(&levels).into(),
+        ],
+        &level0,
+        &["--levels-dir", "level0.png"],
+    );
+    let level2 = levels.join("level2.png");
+    run(
+        synth(&["--levels-dir", s(&levels), "--copy-map", s(&level2)]),
+        &level2,
+        &["--copy-map", "--levels-dir"],
+    );
+    run(
+        vec![
+            "synth",
+            s(&level2),
+            "-o",
+            o,
+            "--size",
+            "64x64",
+            "--levels-dir",
+            s(&levels),
+        ]
+        .into_iter()
+        .map(String::from)
+        .collect(),
+        &out,
+        &["input", "--levels-dir"],
+    );
+    // An output on an input: the input is kept.
+    let before = std::fs::read(&sample).unwrap();
+    let o = texsyn_within(
+        &["synth", sm, "-o", sm, "--size", "64x64"],
+        std::time::Duration::from_secs(60),
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("is the input") && err.lines().count() == 1,
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&sample).unwrap(), before);
+    let spelled = format!("{}/sub/../sample.png", d.display());
+    let o = texsyn_within(
+        &["extend", sm, "-o", &spelled, "--size", "128x128"],
+        std::time::Duration::from_secs(60),
+    );
+    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(std::fs::read(&sample).unwrap(), before);
+    let mask = d.join("mask.png");
+    image::GrayImage::from_pixel(96, 96, image::Luma([255]))
+        .save(&mask)
+        .unwrap();
+    let o = texsyn_within(
+        &["fill", sm, "--mask", s(&mask), "-o", s(&mask)],
+        std::time::Duration::from_secs(60),
+    );
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--mask"));
+    // Format limits are checked before the synthesis.
+    let webp = d.join("big.webp");
+    let start = std::time::Instant::now();
+    refuses(
+        &["synth", sm, "-o", s(&webp), "--size", "16384x16"],
+        &webp,
+        &["WebP", "16383", "16384x16", ".png"],
+    );
+    let tif = d.join("map.webp");
+    refuses(
+        &[
+            "synth",
+            sm,
+            "-o",
+            s(&out),
+            "--size",
+            "20000x20",
+            "--copy-map",
+            s(&tif),
+        ],
+        &tif,
+        &["map.webp", "16383"],
+    );
+    assert!(
+        start.elapsed() < std::time::Duration::from_secs(10),
+        "refused late"
+    );
+}
+
+/// A PNG with a valid signature and IHDR claiming `w`×`h`, then a bogus IDAT.
+fn lying_png(w: u32, h: u32) -> Vec<u8> {
+    fn chunk(out: &mut Vec<u8>, kind: &[u8], data: &[u8]) {
+        out.extend_from_slice(&(data.len() as u32).to_be_bytes());
+        let mut c = kind.to_vec();
+        c.extend_from_slice(data);
+        out.extend_from_slice(&c);
+        out.extend_from_slice(&crc32(&c).to_be_bytes());
+    }
+    let mut ihdr = Vec::new();
+    ihdr.extend_from_slice(&w.to_be_bytes());
+    ihdr.extend_from_slice(&h.to_be_bytes());
+    ihdr.extend_from_slice(&[8, 2, 0, 0, 0]);
+    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+    chunk(&mut out, b"IHDR", &ihdr);
+    chunk(&mut out, b"IDAT", &[0x78, 0x9c, 1, 2, 3, 4]);
+    chunk(&mut out, b"IEND", &[]);
+    out
+}
+
+fn crc32(data: &[u8]) -> u32 {
+    let mut c = 0xFFFF_FFFFu32;
+    for &b in data {
+        c ^= u32::from(b);
+        for _ in 0..8 {
+            c = if c & 1 != 0 {
+                0xEDB8_8320 ^ (c >> 1)
+            } else {
+                c >> 1
+            };
+        }
+    }
+    !c
+}
+
+/// The file `name` in `dir` holding `bytes`, as an argument.
+fn file(dir: &Path, name: &str, bytes: &[u8]) -> String {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    s(&p).to_string()
+}
+
+/// `img` encoded as `fmt`.
+fn encoded(img: &image::DynamicImage, fmt: image::ImageFormat) -> Vec<u8> {
+    let mut buf = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut buf, fmt).unwrap();
+    buf.into_inner()
+}
+
+#[test]
+fn bad_images_are_refused_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("out.png");
+    let sample = image::open(assets().join("brick_color_96.png")).unwrap();
+    let rgb = image::DynamicImage::ImageRgb8(sample.to_rgb8());
+    let jpeg = encoded(&rgb, image::ImageFormat::Jpeg);
+    let tiff = encoded(&rgb, image::ImageFormat::Tiff);
+    let webp = encoded(&rgb, image::ImageFormat::WebP);
+    let png = encoded(&rgb, image::ImageFormat::Png);
+    let half = |b: &[u8]| b[..b.len() / 2].to_vec();
+
+    // A JPEG whose frame header claims 65535×65535.
+    let mut big_jpeg = jpeg.clone();
+    let sof = big_jpeg
+        .windows(2)
+        .position(|w| w == [0xFF, 0xC0])
+        .expect("baseline frame header");
+    big_jpeg[sof + 5..sof + 9].copy_from_slice(&[0xFF, 0xFF, 0xFF, 0xFF]);
+    // A TIFF whose ImageWidth tag claims 100000 (little-endian, first IFD).
+    let mut big_tiff = tiff.clone();
+    assert_eq!(&big_tiff[..2], b"II");
+    let ifd = u32::from_le_bytes(big_tiff[4..8].try_into().unwrap()) as usize;
+    let n = u16::from_le_bytes(big_tiff[ifd..ifd + 2].try_into().unwrap()) as usize;
+    let entry = (0..n)
+        .map(|k| ifd + 2 + 12 * k)
+        .find(|&e| u16::from_le_bytes(big_tiff[e..e + 2].try_into().unwrap()) == 256)
+        .expect("ImageWidth tag");
+    big_tiff[entry + 2..entry + 4].copy_from_slice(&4u16.to_le_bytes());
+    big_tiff[entry + 8..entry + 12].copy_from_slice(&100_000u32.to_le_bytes());
+    // A WebP whose extended header (VP8X) claims a 16384×16384 canvas (the
+    // format's largest), over a lossless bitstream claiming the same.
+    let mut big_webp = b"RIFF\x00\x00\x00\x00WEBPVP8X".to_vec();
+    big_webp.extend_from_slice(&10u32.to_le_bytes());
+    big_webp.extend_from_slice(&[0, 0, 0, 0, 0xFF, 0x3F, 0, 0xFF, 0x3F, 0]);
+    big_webp.extend_from_slice(b"VP8L");
+    big_webp.extend_from_slice(&16u32.to_le_bytes());
+    big_webp.push(0x2f);
+    big_webp.extend_from_slice(&0x0FFF_FFFFu32.to_le_bytes());
+    big_webp.extend_from_slice(&[0; 11]);
+    let riff = (big_webp.len() - 8) as u32;
+    big_webp[4..8].copy_from_slice(&riff.to_le_bytes());
+
+    let wide = d.join("wide.png");
+    image::RgbImage::new(32769, 1).save(&wide).unwrap();
+
+    let cases: Vec<(String, Vec<&str>)> = vec![
+        (
+            file(d, "lying.png", &lying_png(100_000, 100_000)),
+            vec!["lying.png", "100000x100000", "limit"],
+        ),
+        (
+            file(d, "lying.jpg", &big_jpeg),
+            vec!["lying.jpg", "65535x65535", "limit"],
+        ),
+        (file(d, "lying.tif", &big_tiff), vec!["lying.tif"]),
+        (
+            file(d, "lying.webp", &big_webp),
+            vec!["lying.webp", "16384x16384", "limit"],
+        ),
+        (
+            file(d, "cut.png", &half(&png)),
+            vec!["cut.png", "truncated"],
+        ),
+        (
+            file(d, "cut.jpg", &half(&jpeg)),
+            vec!["cut.jpg", "end-of-image", "truncated"],
+        ),
+        (
+            file(d, "cut.tif", &half(&tiff)),
+            vec!["cut.tif", "truncated"],
+        ),
+        (
+            file(d, "cut.webp", &half(&webp)),
+            vec!["cut.webp", "truncated"],
+        ),
+        (
+            file(d, "text.webp", b"RIFF but not really"),
+            vec!["text.webp", "not an image"],
+        ),
+        (file(d, "zero.png", b""), vec!["zero.png", "empty file"]),
+        (s(&wide).to_string(), vec!["wide.png", "32769x1", "32768"]),
+    ];
+    for (input, words) in &cases {
+        refuses(
+            &["synth", input, "-o", s(&out), "--size", "64x64"],
+            &out,
+            words,
+        );
+    }
+    // A FIFO is refused before it is opened (opening one would wait for a writer).
+    #[cfg(unix)]
+    {
+        let fifo = d.join("pipe.png");
+        assert!(std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success());
+        refuses(
+            &["synth", s(&fifo), "-o", s(&out), "--size", "64x64"],
+            &out,
+            &["pipe.png", "not a regular file"],
+        );
+        let img = d.join("img.png");
+        std::fs::write(&img, &png).unwrap();
+        refuses(
+            &["fill", s(&img), "--mask", s(&fifo), "-o", s(&out)],
+            &out,
+            &["pipe.png", "not a regular file"],
+        );
+    }
+}
+
+/// The format comes from the content, not the extension: a PNG named `.jpg`
+/// loads as the PNG it is.
+#[test]
+fn content_decides_the_input_format() {
+    let dir = tempfile::tempdir().unwrap();
+    let named_jpg = dir.path().join("really_a_png.jpg");
+    std::fs::copy(assets().join("brick_color_96.png"), &named_jpg).unwrap();
+    let out = dir.path().join("out.png");
+    let o = texsyn(&[
+        "synth",
+        s(&named_jpg),
+        "-o",
+        s(&out),
+        "--size",
+        "48x48",
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(image::open(&out).unwrap().width(), 48);
+}
+
+/// 16-bit and RGBA masks work: a pixel is a hole when its luminance times its
+/// opacity is at least 128/255.
+#[test]
+fn sixteen_bit_and_alpha_masks_mark_holes_by_threshold() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let magenta = image::Rgb([255u8, 0, 255]);
+    let sample = image::open(assets().join("brick_color_96.png"))
+        .unwrap()
+        .to_rgb8();
+    let mut img = sample.clone();
+    // The hole (x, y in 40..52) is painted magenta, absent from the brick sample.
+    let hole = |x: u32, y: u32| (40..52).contains(&x) && (40..52).contains(&y);
+    for (x, y, p) in img.enumerate_pixels_mut() {
+        if hole(x, y) {
+            *p = magenta;
+        }
+    }
+    let input = d.join("in.png");
+    img.save(&input).unwrap();
+    // 16-bit grey: 40000/65535 ≈ 156/255 marks a hole, 30000 ≈ 117/255 does not.
+    let mask16 = image::ImageBuffer::from_fn(96, 96, |x, y| {
+        image::Luma([if hole(x, y) {
+            40000u16
+        } else if x < 20 {
+            30000
+        } else {
+            0
+        }])
+    });
+    let m16 = d.join("mask16.png");
+    mask16.save(&m16).unwrap();
+    // RGBA: opaque white marks a hole; white with alpha 0 does not.
+    let mask_rgba = image::RgbaImage::from_fn(96, 96, |x, y| {
+        if hole(x, y) {
+            image::Rgba([255, 255, 255, 255])
+        } else if x < 20 {
+            image::Rgba([255, 255, 255, 0])
+        } else {
+            image::Rgba([0, 0, 0, 255])
+        }
+    });
+    let mrgba = d.join("mask_rgba.png");
+    mask_rgba.save(&mrgba).unwrap();
+    for mask in [&m16, &mrgba] {
+        let out = d.join("out.png");
+        let o = texsyn(&["fill", s(&input), "--mask", s(mask), "-o", s(&out), "-q"]);
+        assert!(
+            o.status.success(),
+            "{mask:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let got = image::open(&out).unwrap().to_rgb8();
+        for (x, y, p) in got.enumerate_pixels() {
+            if hole(x, y) {
+                assert_ne!(*p, magenta, "{mask:?}: hole pixel ({x},{y}) not filled");
+            } else if x < 20 {
+                assert_eq!(
+                    p,
+                    img.get_pixel(x, y),
+                    "{mask:?}: below-threshold pixel ({x},{y}) changed"
+                );
+            }
+        }
+    }
+}
+
+/// Sends `signal` to a long synthesis: it exits with `code`, leaves no temp
+/// file or temporary directory, and keeps the existing output.
+#[cfg(unix)]
+fn interrupted_run_cleans_up(signal: &str, code: i32) {
+    use std::process::{Command, Stdio};
+    let dir = tempfile::tempdir().unwrap();
+    let tmp = dir.path().join("tmp");
+    std::fs::create_dir(&tmp).unwrap();
+    let out = dir.path().join("out.png");
+    std::fs::write(&out, b"previous result").unwrap();
+    let map = dir.path().join("map.png");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_texsyn"))
+        .args([
+            "synth",
+            s(&assets().join("gravel_gray_500.png")),
+            "-o",
+            s(&out),
+            "--copy-map",
+            s(&map),
+            "--size",
+            "2000x2000",
+            "-q",
+        ])
+        .env("TMPDIR", &tmp)
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "the run ended before the signal"
+    );
+    let sent = Command::new("kill")
+        .args([signal, &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(code), "{signal}: {err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("interrupted"), "{err}");
+    assert_eq!(std::fs::read(&out).unwrap(), b"previous result");
+    assert!(!map.exists());
+    assert!(temp_files(dir.path()).is_empty());
+    assert_eq!(
+        std::fs::read_dir(&tmp).unwrap().count(),
+        0,
+        "temporary directory left"
+    );
+}
+
+#[cfg(unix)]
+#[test]
+fn sigint_and_sigterm_remove_temporaries() {
+    interrupted_run_cleans_up("-INT", 130);
+    interrupted_run_cleans_up("-TERM", 143);
+}
+
+/// A worker stand-in for `--worker-binary`: records its pid in `$FAKE_PIDS`,
+/// prints a listening line (nothing listens there, so the run searches
+/// locally) and sleeps.
+#[cfg(unix)]
+fn fake_worker(dir: &Path) -> std::path::PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let p = dir.join("fake-worker.sh");
+    std::fs::write(
+        &p,
+        "#!/bin/sh\necho $$ > \"$FAKE_PIDS/$$\"\necho \"listening on 127.0.0.2:$((1024 + $$ % 60000))\"\nexec sleep 300\n",
+    )
+    .unwrap();
+    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
+    p
+}
+
+/// True while `pid` runs (a zombie, or no such process, does not).
+#[cfg(unix)]
+fn alive(pid: &str) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/status")).is_ok_and(|s| {
+        s.lines()
+            .any(|l| l.starts_with("State:") && !l.contains('Z'))
+    })
+}
+
+#[cfg(unix)]
+#[test]
+fn sigint_stops_local_workers_and_removes_their_token_directory() {
+    use std::process::{Command, Stdio};
+    let dir = tempfile::tempdir().unwrap();
+    let (tmp, pids) = (dir.path().join("tmp"), dir.path().join("pids"));
+    std::fs::create_dir(&tmp).unwrap();
+    std::fs::create_dir(&pids).unwrap();
+    let worker = fake_worker(dir.path());
+    let out = dir.path().join("out.png");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_texsyn"))
+        .args([
+            "synth",
+            s(&assets().join("gravel_gray_500.png")),
+            "-o",
+            s(&out),
+            "--size",
+            "2000x2000",
+            "-q",
+            "--local-workers",
+            "2",
+            "--worker-binary",
+            s(&worker),
+        ])
+        .env("TMPDIR", &tmp)
+        .env("FAKE_PIDS", &pids)
+        .env("RUST_LOG", "error")
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while std::fs::read_dir(&pids).unwrap().count() < 2 {
+        assert!(start.elapsed().as_secs() < 30, "the workers never started");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(1000));
+    assert_eq!(
+        std::fs::read_dir(&tmp).unwrap().count(),
+        1,
+        "the token directory"
+    );
+    assert!(child.try_wait().unwrap().is_none(), "the run ended early");
+    let sent = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert_eq!(
+        std::fs::read_dir(&tmp).unwrap().count(),
+        0,
+        "token directory left"
+    );
+    let workers: Vec<String> = std::fs::read_dir(&pids)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(workers.len(), 2);
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    for pid in &workers {
+        assert!(!alive(pid), "worker {pid} still runs");
+    }
+    assert!(!out.exists());
+    assert!(temp_files(dir.path()).is_empty());
+}

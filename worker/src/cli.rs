@@ -56,8 +56,9 @@ pub struct HealthArgs {
     /// File holding the shared token, if the worker requires one.
     #[arg(long)]
     pub token_file: Option<PathBuf>,
-    /// Seconds to wait for the answer.
-    #[arg(long, default_value_t = 3.0)]
+    /// Seconds to wait for the answer (0.1 to 600).
+    #[arg(long, default_value_t = 3.0, value_name = "SECONDS",
+          value_parser = |s: &str| parse_seconds(s, HEALTH_TIMEOUT.0, HEALTH_TIMEOUT.1))]
     pub timeout: f64,
 }
 
@@ -86,8 +87,9 @@ pub struct ServeArgs {
     /// Largest gRPC message, in bytes (suffixes K, M, G allowed).
     #[arg(long, value_parser = parse_bytes, default_value = "64M")]
     pub max_message: u64,
-    /// Free a job's memory this many seconds after its last call (0 = never).
-    #[arg(long, default_value_t = 300)]
+    /// Free a job's memory this many seconds after its last call (0 = never; at most 30 days).
+    #[arg(long, default_value_t = 300, value_name = "SECONDS",
+          value_parser = clap::value_parser!(u64).range(0..=MAX_IDLE_TIMEOUT))]
     pub idle_timeout: u64,
     /// Most connections open at once; more are closed at accept.
     #[arg(long, default_value_t = crate::service::DEFAULT_MAX_CONNECTIONS)]
@@ -114,6 +116,61 @@ pub struct ServeArgs {
     /// Shut down when stdin reaches end of file (e.g. when the master's ssh session ends).
     #[arg(long)]
     pub exit_on_stdin_close: bool,
+}
+
+/// Range of `health --timeout`, in seconds.
+const HEALTH_TIMEOUT: (f64, f64) = (0.1, 600.0);
+/// Largest `--idle-timeout`, in seconds (30 days).
+const MAX_IDLE_TIMEOUT: u64 = 30 * 24 * 3600;
+
+/// Parses a number of seconds in `min..=max` (finite): the one parser of the
+/// worker's duration flags, used as a clap value parser.
+pub fn parse_seconds(s: &str, min: f64, max: f64) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| {
+        format!("'{s}' is not a number of seconds; give one between {min} and {max}")
+    })?;
+    seconds(v, min, max)
+        .map(|_| v)
+        .map_err(|_| format!("{s} seconds is out of range; give a number between {min} and {max}"))
+}
+
+/// `v` seconds as a [`Duration`] when finite and in `min..=max`.
+fn seconds(v: f64, min: f64, max: f64) -> Result<Duration, String> {
+    if v.is_finite() && (min..=max).contains(&v) {
+        Duration::try_from_secs_f64(v).map_err(|e| format!("{v} seconds: {e}"))
+    } else {
+        Err(format!(
+            "{v} seconds is out of range; give a number between {min} and {max}"
+        ))
+    }
+}
+
+/// Parses the command line. A usage error (unknown flag, bad value) is
+/// printed as one line `texsyn-worker: error: ...` and exits with code 1;
+/// help and version go out as clap prints them.
+pub fn parse_args() -> Cli {
+    use clap::error::ErrorKind;
+    Cli::try_parse().unwrap_or_else(|e| {
+        if matches!(
+            e.kind(),
+            ErrorKind::DisplayHelp
+                | ErrorKind::DisplayVersion
+                | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+        ) {
+            e.exit()
+        }
+        let text = e.render().to_string();
+        let parts: Vec<&str> = text
+            .lines()
+            .map(str::trim)
+            .filter(|l| {
+                !l.is_empty() && !l.starts_with("Usage:") && !l.starts_with("For more information")
+            })
+            .map(|l| l.strip_prefix("error: ").unwrap_or(l))
+            .collect();
+        eprintln!("texsyn-worker: error: {} (see --help)", parts.join(" "));
+        std::process::exit(1)
+    })
 }
 
 /// Parses `123`, `64K`, `64M`, `8G` (binary units).
@@ -192,7 +249,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Health(a)) => crate::health::check(
             &a.address,
             a.token_file.as_deref(),
-            Duration::from_secs_f64(a.timeout.clamp(0.1, 600.0)),
+            seconds(a.timeout, HEALTH_TIMEOUT.0, HEALTH_TIMEOUT.1)
+                .map_err(|e| anyhow::anyhow!("--timeout: {e}"))?,
         ),
     }
 }
@@ -215,6 +273,25 @@ mod tests {
         assert_eq!(parse_bytes(" 8G "), Ok(8 << 30));
         assert!(parse_bytes("x").is_err());
         assert!(parse_bytes("99999999999G").is_err());
+    }
+
+    #[test]
+    fn durations_are_validated() {
+        assert_eq!(parse_seconds("2.5", 0.1, 600.0), Ok(2.5));
+        for bad in ["nan", "inf", "-1", "1e300", "0", "x", ""] {
+            assert!(parse_seconds(bad, 0.1, 600.0).is_err(), "{bad}");
+        }
+        for args in [
+            &["texsyn-worker", "health", "--timeout", "nan"][..],
+            &["texsyn-worker", "health", "--timeout", "inf"],
+            &["texsyn-worker", "health", "--timeout", "-3"],
+            &["texsyn-worker", "serve", "--idle-timeout", "99999999999"],
+            &["texsyn-worker", "serve", "--idle-timeout", "-1"],
+        ] {
+            assert!(Cli::try_parse_from(args).is_err(), "{args:?}");
+        }
+        let cli = Cli::try_parse_from(["texsyn-worker", "health", "--timeout", "0.5"]).unwrap();
+        assert!(matches!(cli.command, Some(Command::Health(h)) if h.timeout == 0.5));
     }
 
     #[test]

@@ -1,7 +1,6 @@
-//! `texsyn`: thin binary over the library (parse, set up tracing, run).
+//! `texsyn`: thin binary over the library (parse, set up tracing and the
+//! signal handler, run).
 use std::process::ExitCode;
-
-use clap::Parser;
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
@@ -11,11 +10,18 @@ fn main() -> ExitCode {
         )
         .with_writer(std::io::stderr)
         .init();
-    let cli = texsyn::cli::Cli::parse();
+    let cli = texsyn::cli::parse_args();
+    if let Err(e) = texsyn::cleanup::install_signal_handlers() {
+        eprintln!("texsyn: error: {e:#}");
+        return ExitCode::FAILURE;
+    }
     match texsyn::cli::run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("texsyn: error: {e:#}");
+            eprintln!(
+                "texsyn: error: {}",
+                texsyn::cli::one_line(&format!("{e:#}"))
+            );
             ExitCode::FAILURE
         }
     }

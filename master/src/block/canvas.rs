@@ -128,9 +128,14 @@ pub(super) fn placement(
             let (x, y) = match position {
                 Position::Center => ((cw - sw) / 2, (ch - sh) / 2),
                 Position::At(x, y) => {
+                    let inside = |at: usize, side: usize, canvas: usize| {
+                        at.checked_add(side).is_some_and(|end| end <= canvas)
+                    };
                     ensure!(
-                        x + sw <= cw && y + sh <= ch,
-                        "position {x},{y} puts the {sw}×{sh} sample outside the {cw}×{ch} canvas"
+                        inside(*x, sw, cw) && inside(*y, sh, ch),
+                        "position {x},{y} puts the {sw}×{sh} sample outside the {cw}×{ch} canvas; give X ≤ {} and Y ≤ {}",
+                        cw.saturating_sub(sw),
+                        ch.saturating_sub(sh)
                     );
                     (*x, *y)
                 }

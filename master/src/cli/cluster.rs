@@ -5,12 +5,12 @@
 
 use std::ffi::OsString;
 use std::path::PathBuf;
-use std::time::Duration;
 
 use anyhow::{bail, ensure, Context, Result};
 use clap::Args;
 use texsyn_proto::auth::read_token_file;
 
+use super::{parse_seconds, seconds};
 use crate::cluster::{status, ClusterOptions, WorkerSpec};
 use crate::launch::{
     find_worker_binary, parse_worker_list, read_hosts_file, read_hosts_file_launch, LaunchSpec,
@@ -52,9 +52,15 @@ pub struct ClusterArgs {
     pub master_share: bool,
     /// Least time a worker gets to answer a batch, in seconds (its deadline is
     /// this plus a multiple of the time its calibration predicts).
-    #[arg(long, default_value_t = 2.0, value_name = "SECONDS")]
+    #[arg(long, default_value_t = 2.0, value_name = "SECONDS",
+          value_parser = |s: &str| parse_seconds(s, WORKER_TIMEOUT.0, WORKER_TIMEOUT.1))]
     pub worker_timeout: f64,
 }
+
+/// Range of `--worker-timeout`, in seconds.
+const WORKER_TIMEOUT: (f64, f64) = (0.01, 3600.0);
+/// Range of `cluster status --timeout`, in seconds.
+const STATUS_TIMEOUT: (f64, f64) = (0.1, 600.0);
 
 /// The cluster of one run: what to connect to, and the local workers started
 /// for it (killed when this is dropped; drop the search backend first).
@@ -149,11 +155,18 @@ impl ClusterArgs {
 
     /// The flags that do not need any file or process.
     fn check_flags(&self) -> Result<()> {
-        ensure!(
-            self.worker_timeout.is_finite() && (0.01..=3600.0).contains(&self.worker_timeout),
-            "--worker-timeout {} must be between 0.01 and 3600 seconds",
-            self.worker_timeout
-        );
+        seconds(
+            "--worker-timeout",
+            self.worker_timeout,
+            WORKER_TIMEOUT.0,
+            WORKER_TIMEOUT.1,
+        )?;
+        if let Some(t) = self.local_worker_threads {
+            ensure!(
+                (1..=1024).contains(&t),
+                "--local-worker-threads {t} must be in 1..=1024"
+            );
+        }
         if self.local_workers > 0 && self.tls_ca.is_some() {
             bail!("--tls-ca cannot be used with --local-workers: local workers listen on loopback without TLS");
         }
@@ -190,7 +203,12 @@ impl ClusterArgs {
             workers,
             require_cluster: self.require_cluster,
             master_share: self.master_share,
-            deadline_floor: Duration::from_secs_f64(self.worker_timeout),
+            deadline_floor: seconds(
+                "--worker-timeout",
+                self.worker_timeout,
+                WORKER_TIMEOUT.0,
+                WORKER_TIMEOUT.1,
+            )?,
             ..ClusterOptions::default()
         })
     }
@@ -220,8 +238,9 @@ pub struct StatusArgs {
     /// Shared token of the workers.
     #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
-    /// Seconds to wait for each worker.
-    #[arg(long, default_value_t = 3.0)]
+    /// Seconds to wait for each worker (0.1 to 600).
+    #[arg(long, default_value_t = 3.0, value_name = "SECONDS",
+          value_parser = |s: &str| parse_seconds(s, STATUS_TIMEOUT.0, STATUS_TIMEOUT.1))]
     pub timeout: f64,
 }
 
@@ -235,7 +254,7 @@ pub fn run_status(a: &StatusArgs) -> Result<()> {
     if workers.is_empty() {
         bail!("no workers: give --hosts FILE or --workers HOST:PORT,...");
     }
-    let timeout = Duration::from_secs_f64(a.timeout.clamp(0.1, 600.0));
+    let timeout = seconds("--timeout", a.timeout, STATUS_TIMEOUT.0, STATUS_TIMEOUT.1)?;
     let rows = status::query(&workers, timeout)?;
     print!("{}", status::format_table(&rows));
     if rows.iter().all(|(_, r)| r.is_err()) {

@@ -2,7 +2,7 @@
 //! [`Config`] and [`Mode`], progress bars, and the outputs written atomically.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
@@ -16,6 +16,7 @@ use crate::search::{LocalSearch, Plan, PlannedSearch};
 pub use cluster::{run_status, ClusterArgs, ClusterSetup, StatusArgs};
 
 mod cluster;
+mod paths;
 
 const EXAMPLES: &str = "Examples:
   texsyn extend sample.png -o out.png --size 1024x1024 --block 5 --neighbourhood 11 --levels 4 --tileable --seed 7
@@ -200,6 +201,82 @@ pub enum MethodArg {
     Scanline,
 }
 
+/// Parses the command line. A usage error (unknown flag, bad value) is
+/// printed as one line `texsyn: error: ...` and exits with code 1; help and
+/// version go out as clap prints them.
+pub fn parse_args() -> Cli {
+    use clap::error::ErrorKind;
+    Cli::try_parse().unwrap_or_else(|e| {
+        if matches!(
+            e.kind(),
+            ErrorKind::DisplayHelp
+                | ErrorKind::DisplayVersion
+                | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+        ) {
+            e.exit()
+        }
+        eprintln!("texsyn: error: {}", clap_one_line(&e.render().to_string()));
+        std::process::exit(1)
+    })
+}
+
+/// clap's error text as one line: its `error:` line, details and tips
+/// joined; the usage block is left out (`--help` shows it).
+fn clap_one_line(text: &str) -> String {
+    let parts: Vec<&str> = text
+        .lines()
+        .map(str::trim)
+        .filter(|l| {
+            !l.is_empty() && !l.starts_with("Usage:") && !l.starts_with("For more information")
+        })
+        .map(|l| l.strip_prefix("error: ").unwrap_or(l))
+        .collect();
+    let mut line = parts.join(" ");
+    if !line.contains("--help") {
+        line.push_str(" (see --help)");
+    }
+    line
+}
+
+/// An error message as one line (line breaks of nested causes become spaces).
+pub fn one_line(message: &str) -> String {
+    message
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// Parses a number of seconds in `min..=max` (finite): the one parser of the
+/// duration flags, used as a clap value parser, e.g.
+/// `value_parser = |s: &str| parse_seconds(s, 0.1, 600.0)`.
+pub fn parse_seconds(s: &str, min: f64, max: f64) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| {
+        format!("'{s}' is not a number of seconds; give one between {min} and {max}")
+    })?;
+    check_seconds(v, s, min, max)
+}
+
+/// `v` (written `text`) when finite and in `min..=max`.
+fn check_seconds(v: f64, text: &str, min: f64, max: f64) -> Result<f64, String> {
+    if v.is_finite() && (min..=max).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{text} seconds is out of range; give a number between {min} and {max}"
+        ))
+    }
+}
+
+/// `v` seconds of the flag `flag` as a [`Duration`], checked against
+/// `min..=max` again (for callers of the library that skip the parser).
+pub fn seconds(flag: &str, v: f64, min: f64, max: f64) -> Result<Duration> {
+    let v =
+        check_seconds(v, &v.to_string(), min, max).map_err(|e| anyhow::anyhow!("{flag}: {e}"))?;
+    Duration::try_from_secs_f64(v).with_context(|| format!("{flag} {v} is not a duration"))
+}
+
 /// Parses `WxH`.
 pub fn parse_size(s: &str) -> Result<(usize, usize)> {
     let (w, h) = s
@@ -216,7 +293,7 @@ pub fn parse_size(s: &str) -> Result<(usize, usize)> {
     ensure!(w > 0 && h > 0, "size {w}x{h} is empty; give both sides ≥ 1");
     ensure!(
         w.saturating_mul(h) <= block::MAX_CANVAS_PIXELS && w.max(h) <= imaging::MAX_SIDE,
-        "size {w}x{h} is too large: the limit is {} pixels and {} per side",
+        "size {w}x{h} is too large: the limit is {} pixels and {} per side; use a smaller --size",
         block::MAX_CANVAS_PIXELS,
         imaging::MAX_SIDE
     );
@@ -244,15 +321,19 @@ fn parse_position(s: &str) -> Result<Position> {
     }
     let (x, y) = s
         .split_once(',')
-        .with_context(|| format!("position '{s}' is not 'center' or X,Y"))?;
-    Ok(Position::At(
-        x.trim()
-            .parse()
-            .with_context(|| format!("x '{x}' is not a number"))?,
-        y.trim()
-            .parse()
-            .with_context(|| format!("y '{y}' is not a number"))?,
-    ))
+        .with_context(|| format!("position '{s}' is not 'center' or X,Y, e.g. --position 10,20"))?;
+    let coordinate = |name: &str, v: &str| -> Result<usize> {
+        let n: u64 = v.trim().parse().with_context(|| {
+            format!("{name} '{v}' in --position '{s}' is not a whole number ≥ 0")
+        })?;
+        ensure!(
+            n < imaging::MAX_SIDE as u64,
+            "{name} {n} in --position '{s}' is outside any canvas (at most {} pixels per side); give X,Y inside the --size canvas",
+            imaging::MAX_SIDE
+        );
+        Ok(n as usize)
+    };
+    Ok(Position::At(coordinate("x", x)?, coordinate("y", y)?))
 }
 
 impl TryFrom<&Common> for Config {
@@ -351,10 +432,14 @@ fn write_outputs(common: &Common, out: &block::Output) -> Result<()> {
     Ok(())
 }
 
-fn check_outputs(common: &Common) -> Result<()> {
+/// Checks the outputs before the run: writable, and their formats can hold
+/// the `size` of the result.
+fn check_outputs(common: &Common, size: (usize, usize)) -> Result<()> {
     imaging::check_writable(&common.output)?;
+    imaging::check_output_size(&common.output, size.0, size.1)?;
     if let Some(p) = &common.copy_map {
         imaging::check_writable(p)?;
+        imaging::check_output_size(p, size.0, size.1)?;
     }
     if let Some(dir) = &common.levels_dir {
         std::fs::create_dir_all(dir)
@@ -369,7 +454,11 @@ fn check_outputs(common: &Common) -> Result<()> {
 
 /// Runs one synthesis command end to end.
 fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) -> Result<()> {
-    check_outputs(common)?;
+    let size = match &mode {
+        Mode::Fill { .. } => (sample.width, sample.height),
+        Mode::Extend { width, height, .. } | Mode::Synth { width, height, .. } => (*width, *height),
+    };
+    check_outputs(common, size)?;
     let engine = Engine::with_kernel_name(&common.kernel)?;
     let pool = thread_pool(common.threads)?;
     let bars = Bars {
@@ -429,12 +518,14 @@ fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Fill(a) => {
+            paths::check_distinct(&[("input", &a.input), ("--mask", &a.mask)], &a.common)?;
             let cfg = Config::try_from(&a.common)?;
             let img = imaging::load_color(&a.input)?;
             let holes = imaging::load_mask(&a.mask, img.width, img.height)?;
             run_synthesis(&img, Mode::Fill { holes }, cfg, &a.common)
         }
         Command::Extend(a) => {
+            paths::check_distinct(&[("input", &a.input)], &a.common)?;
             let cfg = Config::try_from(&a.common)?;
             let (width, height) = parse_size(&a.size)?;
             let position = parse_position(&a.position)?;
@@ -453,6 +544,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Synth(a) => {
             let mut cfg = Config::try_from(&a.common)?;
             let (width, height) = parse_size(&a.size)?;
+            let mut level_files = Vec::new();
             for spec in &a.level_samples {
                 let (l, file) = spec.split_once('=').with_context(|| {
                     format!("--level-sample '{spec}' is not L=FILE, e.g. 0=detail.png")
@@ -461,8 +553,13 @@ pub fn run(cli: Cli) -> Result<()> {
                     .trim()
                     .parse()
                     .with_context(|| format!("level '{l}' in --level-sample is not a number"))?;
-                cfg.level_samples
-                    .push((l, imaging::load_color(Path::new(file))?));
+                level_files.push((l, Path::new(file)));
+            }
+            let mut inputs = vec![("input", a.input.as_path())];
+            inputs.extend(level_files.iter().map(|&(_, f)| ("--level-sample", f)));
+            paths::check_distinct(&inputs, &a.common)?;
+            for (l, file) in level_files {
+                cfg.level_samples.push((l, imaging::load_color(file)?));
             }
             let img = imaging::load_color(&a.input)?;
             let method = match a.method {

@@ -1,6 +1,8 @@
 //! Atomic file writes (ARCHITECTURE §3.10): write a hidden temporary file in
 //! the target directory, sync it and rename it over the target, so a failed or
 //! interrupted save never leaves a truncated file and keeps an existing one.
+//! Each temp file is registered in [`crate::cleanup`] while it exists, so a
+//! SIGINT or SIGTERM removes it too.
 
 use std::ffi::OsString;
 use std::fs::{self, File, OpenOptions};
@@ -9,12 +11,13 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::{one_line, ImageIoError};
+use crate::cleanup::{self, Registration, Temporary};
 
 /// [`check_writable`] without the extension check, for non-image outputs.
 pub fn check_writable_any(path: &Path) -> anyhow::Result<()> {
     let dir = target_dir(path)?;
     let tmp = temp_path(&dir, path)?;
-    let file = create_temp(path, &dir, &tmp)?;
+    let (file, _registration) = create_temp(path, &dir, &tmp)?;
     drop(file);
     fs::remove_file(&tmp).map_err(|e| ImageIoError::Write {
         path: path.to_path_buf(),
@@ -77,7 +80,20 @@ fn temp_path(dir: &Path, path: &Path) -> Result<PathBuf, ImageIoError> {
     Ok(dir.join(tmp))
 }
 
-fn create_temp(path: &Path, dir: &Path, tmp: &Path) -> Result<File, ImageIoError> {
+/// Creates the temp file `tmp`, registered for removal on a signal.
+fn create_temp(path: &Path, dir: &Path, tmp: &Path) -> Result<(File, Registration), ImageIoError> {
+    let interrupted = || ImageIoError::Write {
+        path: path.to_path_buf(),
+        reason: "interrupted: the process is ending".into(),
+    };
+    cleanup::register(
+        || open_temp(path, dir, tmp),
+        |_| Temporary::File(tmp.to_path_buf()),
+        interrupted,
+    )
+}
+
+fn open_temp(path: &Path, dir: &Path, tmp: &Path) -> Result<File, ImageIoError> {
     OpenOptions::new()
         .write(true)
         .create_new(true)
@@ -123,7 +139,7 @@ where
 {
     let dir = target_dir(path)?;
     let tmp = temp_path(&dir, path)?;
-    let file = create_temp(path, &dir, &tmp)?;
+    let (file, registration) = create_temp(path, &dir, &tmp)?;
     let mut guard = TempGuard {
         path: &tmp,
         armed: true,
@@ -140,6 +156,7 @@ where
     fs::rename(&tmp, path)
         .map_err(|e| write(format!("cannot replace the file: {}", one_line(&e))))?;
     guard.armed = false;
+    drop(registration);
     // Persist the rename; best effort (not every platform can sync a directory).
     if let Ok(d) = File::open(&dir) {
         let _ = d.sync_all();

@@ -53,16 +53,37 @@ fn decode_error(path: &Path, e: ImageError) -> ImageIoError {
 
 /// Opens, identifies by content, size-checks and decodes an image file.
 fn decode(path: &Path, what: &str) -> Result<DynamicImage, ImageIoError> {
-    let file = File::open(path).map_err(|e| read_error(path, e))?;
-    let meta = file.metadata().map_err(|e| read_error(path, e))?;
+    // Checked before opening: opening a FIFO would wait for a writer.
+    let meta = std::fs::metadata(path).map_err(|e| read_error(path, e))?;
     if meta.is_dir() {
         return Err(ImageIoError::IsDirectory(path.to_path_buf()));
+    }
+    if !meta.is_file() {
+        return Err(ImageIoError::NotRegular(path.to_path_buf()));
+    }
+    if meta.len() == 0 {
+        return Err(ImageIoError::EmptyFile(path.to_path_buf()));
+    }
+    let file = File::open(path).map_err(|e| read_error(path, e))?;
+    // The path may have been replaced between the two looks.
+    if !file.metadata().map_err(|e| read_error(path, e))?.is_file() {
+        return Err(ImageIoError::NotRegular(path.to_path_buf()));
     }
     let mut reader = image::ImageReader::new(BufReader::new(file))
         .with_guessed_format()
         .map_err(|e| read_error(path, e))?;
     if reader.format().is_none() {
         return Err(ImageIoError::NotAnImage(path.to_path_buf()));
+    }
+    // The JPEG decoder fills a truncated image with grey instead of failing.
+    if reader.format() == Some(ImageFormat::Jpeg) {
+        let mut r = BufReader::new(File::open(path).map_err(|e| read_error(path, e))?);
+        if !jpeg_complete(&mut r).map_err(|e| read_error(path, e))? {
+            return Err(ImageIoError::Corrupt {
+                path: path.to_path_buf(),
+                reason: "the JPEG data ends before its end-of-image marker".into(),
+            });
+        }
     }
     let mut limits = image::Limits::default();
     limits.max_alloc = Some(MAX_DECODE_ALLOC);
@@ -78,6 +99,74 @@ fn decode(path: &Path, what: &str) -> Result<DynamicImage, ImageIoError> {
     let mut img = DynamicImage::from_decoder(decoder).map_err(|e| decode_error(path, e))?;
     img.apply_orientation(orientation);
     Ok(img)
+}
+
+/// True when a JPEG stream reaches its end-of-image marker; false when the
+/// file ends first. Segments are skipped by their lengths, entropy-coded data
+/// byte by byte (`FF 00` and restart markers are data); a stream that stops
+/// looking like JPEG is left to the decoder (true).
+pub(super) fn jpeg_complete(r: &mut impl io::Read) -> io::Result<bool> {
+    use io::Read;
+    let mut byte = [0u8; 1];
+    let mut next = |r: &mut dyn io::Read| -> io::Result<Option<u8>> {
+        Ok(match r.read(&mut byte)? {
+            0 => None,
+            _ => Some(byte[0]),
+        })
+    };
+    macro_rules! get {
+        () => {
+            match next(r)? {
+                Some(b) => b,
+                None => return Ok(false),
+            }
+        };
+    }
+    if (get!(), get!()) != (0xFF, 0xD8) {
+        return Ok(true);
+    }
+    let mut pending: Option<u8> = None;
+    loop {
+        let marker = match pending.take() {
+            Some(m) => m,
+            None => {
+                if get!() != 0xFF {
+                    return Ok(true);
+                }
+                let mut m = get!();
+                while m == 0xFF {
+                    m = get!();
+                }
+                m
+            }
+        };
+        match marker {
+            0xD9 => return Ok(true),
+            0x01 | 0xD0..=0xD7 => continue,
+            _ => {}
+        }
+        let len = u64::from(u16::from_be_bytes([get!(), get!()]));
+        let want = len.saturating_sub(2);
+        if io::copy(&mut r.by_ref().take(want), &mut io::sink())? < want {
+            return Ok(false);
+        }
+        if marker == 0xDA {
+            // Entropy-coded data up to the next marker.
+            loop {
+                if get!() != 0xFF {
+                    continue;
+                }
+                let mut c = get!();
+                while c == 0xFF {
+                    c = get!();
+                }
+                if c != 0x00 && !(0xD0..=0xD7).contains(&c) {
+                    pending = Some(c);
+                    break;
+                }
+            }
+        }
+    }
 }
 
 /// Loads a colour image (PNG, JPEG, TIFF, BMP, WebP; format from the content).
@@ -245,6 +334,28 @@ pub fn save_gray(path: &Path, g: &Gray) -> anyhow::Result<()> {
 /// Writes arbitrary bytes (e.g. a JSON run report) atomically, like the image savers.
 pub fn save_bytes(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     write_atomic(path, |w| w.write_all(bytes).map_err(|e| one_line(&e)))?;
+    Ok(())
+}
+
+/// Checks, before a long run, that the format of `path` (from its extension)
+/// can hold a `width`×`height` image: JPEG at most 65535 and WebP at most
+/// 16383 pixels per side.
+pub fn check_output_size(path: &Path, width: usize, height: usize) -> anyhow::Result<()> {
+    let (name, max) = match output_format(path)? {
+        OutFormat::Jpeg => ("JPEG", 65_535),
+        OutFormat::WebP => ("WebP", 16_383),
+        OutFormat::Png | OutFormat::Tiff | OutFormat::Bmp => return Ok(()),
+    };
+    if width > max || height > max {
+        return Err(ImageIoError::FormatTooSmall {
+            path: path.to_path_buf(),
+            format: name,
+            max,
+            width,
+            height,
+        }
+        .into());
+    }
     Ok(())
 }
 

@@ -9,7 +9,10 @@
 //! extension); 16-bit samples are rounded to 8 bit; grey images are replicated
 //! to RGB; EXIF orientation is applied; **alpha is ignored** for colour images
 //! (the stored RGB is kept as is), while for masks a transparent pixel is
-//! composited over black, i.e. it never marks a hole.
+//! composited over black, i.e. it never marks a hole (a mask pixel is a hole
+//! when its luminance times its opacity is at least 128 of 255, for 8- and
+//! 16-bit masks alike). Only regular, non-empty files are read: a FIFO or
+//! device is refused before it is opened.
 //!
 //! Saving is atomic: the image is encoded into a hidden temporary file in the
 //! target directory, synced, and renamed over the target, so an interrupted or
@@ -27,7 +30,9 @@ mod io;
 mod tests;
 
 pub use atomic::check_writable_any;
-pub use io::{check_writable, load_color, load_mask, save_bytes, save_color, save_gray};
+pub use io::{
+    check_output_size, check_writable, load_color, load_mask, save_bytes, save_color, save_gray,
+};
 
 /// Largest number of pixels of an input image or canvas (64 Mi pixels).
 pub const MAX_PIXELS: usize = 64 * 1024 * 1024;
@@ -154,6 +159,13 @@ pub enum ImageIoError {
     NotFound(PathBuf),
     #[error("{} is a directory, not an image file", .0.display())]
     IsDirectory(PathBuf),
+    #[error(
+        "{} is not a regular file (a FIFO, socket or device); save the image to a file and give that",
+        .0.display()
+    )]
+    NotRegular(PathBuf),
+    #[error("{} is an empty file (0 bytes); export the image again", .0.display())]
+    EmptyFile(PathBuf),
     #[error("cannot read {}: {reason}", path.display())]
     Unreadable { path: PathBuf, reason: String },
     #[error(
@@ -196,6 +208,18 @@ pub enum ImageIoError {
     UnknownExtension { path: PathBuf, reason: String },
     #[error("cannot write {}: directory {} does not exist; create it first", path.display(), dir.display())]
     NoDirectory { path: PathBuf, dir: PathBuf },
+    #[error(
+        "cannot save {}: {format} images are at most {max} pixels per side but this one is \
+         {width}x{height}; use .png or .tif",
+        path.display()
+    )]
+    FormatTooSmall {
+        path: PathBuf,
+        format: &'static str,
+        max: usize,
+        width: usize,
+        height: usize,
+    },
     #[error("cannot write {}: {reason}", path.display())]
     Write { path: PathBuf, reason: String },
 }

@@ -155,7 +155,7 @@ fn load_errors_are_clear() {
     let empty = dir.path().join("empty.png");
     fs::write(&empty, "").unwrap();
     let s = err_text(load_color(&empty));
-    assert!(s.contains("not an image"), "{s}");
+    assert!(s.contains("empty file") && s.contains("empty.png"), "{s}");
 
     let s = err_text(load_color(dir.path()));
     assert!(s.contains("is a directory"), "{s}");
@@ -354,4 +354,48 @@ fn failed_save_keeps_target_and_removes_temp() {
     save_color(&target, &pattern(8, 8)).unwrap();
     assert_eq!(load_color(&target).unwrap().width, 8);
     no_temp_files(dir.path());
+}
+
+#[test]
+fn truncated_jpeg_is_detected() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("a.jpg");
+    save_color(&p, &pattern(64, 48)).unwrap();
+    let bytes = fs::read(&p).unwrap();
+    assert!(super::io::jpeg_complete(&mut bytes.as_slice()).unwrap());
+    // Progressive JPEGs have several scans; this one is baseline, so cut it
+    // everywhere after the start-of-image marker.
+    for cut in (2..bytes.len() - 1).step_by(7) {
+        assert!(
+            !super::io::jpeg_complete(&mut &bytes[..cut]).unwrap(),
+            "cut at {cut} of {}",
+            bytes.len()
+        );
+    }
+    let cut = dir.path().join("cut.jpg");
+    fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let e = err_text(load_color(&cut));
+    assert!(e.contains("end-of-image") && e.contains("cut.jpg"), "{e}");
+}
+
+#[test]
+fn fifo_and_empty_files_are_refused_without_opening() {
+    let dir = tempfile::tempdir().unwrap();
+    let empty = dir.path().join("empty.png");
+    File::create(&empty).unwrap();
+    let e = err_text(load_color(&empty));
+    assert!(e.contains("empty file"), "{e}");
+    #[cfg(unix)]
+    {
+        let fifo = dir.path().join("pipe.png");
+        let ok = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok, "mkfifo");
+        // Opening a FIFO without a writer would block here.
+        let e = err_text(load_color(&fifo));
+        assert!(e.contains("not a regular file"), "{e}");
+    }
 }

@@ -25,7 +25,10 @@ struct HostsFile {
     worker: Vec<HostEntry>,
 }
 
+/// One `[[worker]]` entry; an unknown key (e.g. the typo `ssh_option`) is an
+/// error naming the key.
 #[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 struct HostEntry {
     address: String,
     token_file: Option<PathBuf>,
@@ -40,9 +43,6 @@ struct HostEntry {
     /// Extra options for the ssh client, e.g. `["-F", "/path/ssh_config"]`.
     #[serde(default)]
     ssh_options: Vec<String>,
-    /// Keys for other tools (e.g. launching over ssh); ignored here, with a note.
-    #[serde(flatten)]
-    other: std::collections::BTreeMap<String, toml::Value>,
 }
 
 /// Largest hosts file read (it is a short list).
@@ -87,10 +87,15 @@ pub fn read_hosts_file_launch(
     );
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read the hosts file {}", path.display()))?;
-    let parsed: HostsFile = toml::from_str(&text).with_context(|| {
-        format!(
-            "the hosts file {} is not a list of [[worker]] entries with address = \"host:port\" (and optional token_file)",
-            path.display()
+    let parsed: HostsFile = toml::from_str(&text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|r| format!(" (line {})", text.as_bytes()[..r.start.min(text.len())].iter().filter(|&&b| b == b'\n').count() + 1))
+            .unwrap_or_default();
+        anyhow::anyhow!(
+            "the hosts file {}{line}: {}; it must be a list of [[worker]] entries with address = \"host:port\" and the optional keys token_file, ssh, binary, threads, port, ssh_options",
+            path.display(),
+            crate::cli::one_line(e.message())
         )
     })?;
     if parsed.worker.is_empty() {
@@ -153,10 +158,6 @@ fn entry_spec(
     default_token: Option<&str>,
 ) -> Result<WorkerSpec> {
     split_address(&e.address).with_context(|| format!("in the hosts file {}", path.display()))?;
-    if !e.other.is_empty() {
-        let keys: Vec<&str> = e.other.keys().map(String::as_str).collect();
-        tracing::debug!(address = %e.address, ?keys, "hosts file keys not used for connecting");
-    }
     let token = match &e.token_file {
         Some(f) => Some(read_token_file(&base.join(f))?),
         None => default_token.map(str::to_string),
@@ -217,6 +218,32 @@ mod tests {
         }
         std::fs::write(dir.path().join("empty"), "  \n").unwrap();
         assert!(read_token_file(&dir.path().join("empty")).is_err());
+    }
+
+    #[test]
+    fn unknown_keys_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let hosts = dir.path().join("hosts.toml");
+        for (text, key, line) in [
+            (
+                "[[worker]]\naddress = \"a:1\"\nssh = \"me@a\"\nssh_option = [\"-F\", \"c\"]\n",
+                "ssh_option",
+                4,
+            ),
+            ("[[worker]]\naddress = \"a:1\"\ntoken = \"x\"\n", "token", 3),
+            ("port = 1\n[[worker]]\naddress = \"a:1\"\n", "port", 1),
+        ] {
+            std::fs::write(&hosts, text).unwrap();
+            for launch in [false, true] {
+                let e = format!(
+                    "{:#}",
+                    read_hosts_file_launch(&hosts, None, launch).unwrap_err()
+                );
+                assert!(e.contains(&format!("unknown field `{key}`")), "{e}");
+                assert!(e.contains(&format!("(line {line})")), "{e}");
+                assert!(!e.contains('\n'), "one line: {e}");
+            }
+        }
     }
 
     #[test]

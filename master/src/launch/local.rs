@@ -14,6 +14,49 @@ use anyhow::{bail, Context, Result};
 use texsyn_proto::wire::parse_listening_line;
 
 use super::{end_with_parent, first_line, WorkerSpec, START_TIMEOUT};
+use crate::cleanup::{self, Registration, Temporary};
+
+/// The error of a start refused because the process is ending on a signal.
+fn interrupted() -> anyhow::Error {
+    anyhow::anyhow!("interrupted: the process is ending")
+}
+
+/// A temporary directory `texsyn-<what>-*`, registered for removal on a signal.
+pub(super) fn temp_dir(what: &str) -> Result<(tempfile::TempDir, Registration)> {
+    cleanup::register(
+        || {
+            tempfile::Builder::new()
+                .prefix(&format!("texsyn-{what}-"))
+                .tempdir()
+                .with_context(|| format!("cannot create a temporary directory for the {what}"))
+        },
+        |d| Temporary::Dir(d.path().to_path_buf()),
+        interrupted,
+    )
+}
+
+/// Spawns `cmd`, registered to be killed (or, with `terminate`, asked to
+/// end) on a signal.
+pub(super) fn spawn_registered(
+    cmd: &mut Command,
+    terminate: bool,
+    what: &Path,
+) -> Result<(Child, Registration)> {
+    cleanup::register(
+        || {
+            cmd.spawn()
+                .with_context(|| format!("cannot start {}", what.display()))
+        },
+        |c| {
+            if terminate {
+                Temporary::Terminate(c.id())
+            } else {
+                Temporary::Kill(c.id())
+            }
+        },
+        interrupted,
+    )
+}
 
 /// Name of the worker executable.
 pub const WORKER_BINARY: &str = "texsyn-worker";
@@ -83,6 +126,8 @@ pub struct WorkerProcess {
     pub child: Child,
     /// Where its stderr goes.
     pub log: PathBuf,
+    /// Kills it on a signal; dropped before it is reaped.
+    registration: Option<Registration>,
 }
 
 impl WorkerProcess {
@@ -93,6 +138,7 @@ impl WorkerProcess {
     /// Kills the process (SIGKILL) and reaps it; harmless when it already exited.
     pub fn kill(&mut self) {
         let _ = self.child.kill();
+        self.registration = None;
         let _ = self.child.wait();
     }
 }
@@ -138,15 +184,14 @@ pub fn spawn_worker(
         cmd.env("RUST_LOG", "warn");
     }
     end_with_parent(&mut cmd);
-    let mut child = cmd
-        .spawn()
-        .with_context(|| format!("cannot start {}", binary.display()))?;
-    let stdout = child.stdout.take().context("worker stdout")?;
+    let (child, registration) = spawn_registered(&mut cmd, false, binary)?;
     let mut process = WorkerProcess {
         address: SocketAddr::from(([0, 0, 0, 0], 0)),
-        child,
         log: log.to_path_buf(),
+        registration: Some(registration),
+        child,
     };
+    let stdout = process.child.stdout.take().context("worker stdout")?;
     let line = match first_line(stdout, "texsyn-worker-stdout")? {
         Some(line) => line,
         None => {
@@ -175,6 +220,8 @@ pub struct LocalWorkers {
     pub workers: Vec<WorkerProcess>,
     token: String,
     dir: tempfile::TempDir,
+    /// Removes `dir` on a signal.
+    _dir_registration: Registration,
 }
 
 impl std::fmt::Debug for LocalWorkers {
@@ -200,10 +247,7 @@ impl LocalWorkers {
         }
         let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
         let threads = threads.unwrap_or((cores / n).max(1));
-        let dir = tempfile::Builder::new()
-            .prefix("texsyn-local-workers-")
-            .tempdir()
-            .context("cannot create a directory for the local workers' token")?;
+        let (dir, dir_registration) = temp_dir("local-workers")?;
         let token = new_token();
         let token_path = dir.path().join("token");
         write_token_file(&token_path, &token)?;
@@ -227,6 +271,7 @@ impl LocalWorkers {
             workers,
             token,
             dir,
+            _dir_registration: dir_registration,
         })
     }
 

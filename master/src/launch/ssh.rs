@@ -16,17 +16,22 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, ensure, Context, Result};
 use texsyn_proto::wire::parse_listening_line;
 
-use super::local::new_token;
+use super::local::{new_token, spawn_registered, temp_dir};
 use super::{end_with_parent, first_line, LaunchSpec, WorkerSpec, START_TIMEOUT};
+use crate::cleanup::Registration;
 
 /// How long the resource check of one host may take.
 pub const CHECK_TIMEOUT: Duration = Duration::from_secs(20);
 
 /// Least free memory for a host to be used.
 pub const MIN_FREE_MEMORY: u64 = 64 << 20;
+/// Most free memory a host may report (1 PiB); more is a garbled answer.
+pub const MAX_FREE_MEMORY: u64 = 1 << 50;
+/// Most cores a host may report; more is a garbled answer.
+pub const MAX_CORES: usize = 1 << 16;
 
 /// What the check found on a host.
 #[derive(Clone, Debug, PartialEq)]
@@ -73,17 +78,34 @@ pub fn parse_check_output(out: &str) -> Result<HostReport> {
         .next()
         .and_then(|l| l.parse().ok())
         .context("nproc gave no core count")?;
+    ensure!(
+        (1..=MAX_CORES).contains(&cores),
+        "nproc gave {cores} cores, not a plausible count (1..={MAX_CORES}); check the host"
+    );
     let load: f64 = lines
         .next()
         .and_then(|l| l.split_whitespace().next())
         .and_then(|l| l.parse().ok())
         .context("no /proc/loadavg")?;
+    ensure!(
+        load.is_finite() && load >= 0.0,
+        "/proc/loadavg gave a load of {load}; check the host"
+    );
     let mem_kb: u64 = lines
         .next()
         .filter(|l| l.starts_with("MemAvailable:"))
         .and_then(|l| l.split_whitespace().nth(1))
         .and_then(|l| l.parse().ok())
         .context("no MemAvailable in /proc/meminfo")?;
+    let mem_available = mem_kb
+        .checked_mul(1024)
+        .filter(|&b| b <= MAX_FREE_MEMORY)
+        .with_context(|| {
+            format!(
+                "MemAvailable of {mem_kb} kB is not plausible (over {} TiB); check /proc/meminfo on the host",
+                MAX_FREE_MEMORY >> 40
+            )
+        })?;
     let version = lines
         .next()
         .context("the worker binary printed no version (is it installed there?)")?
@@ -91,7 +113,7 @@ pub fn parse_check_output(out: &str) -> Result<HostReport> {
     Ok(HostReport {
         cores,
         load,
-        mem_available: mem_kb * 1024,
+        mem_available,
         version,
     })
 }
@@ -137,10 +159,12 @@ pub fn check_host(spec: &LaunchSpec) -> Result<HostReport> {
         "nproc; cat /proc/loadavg; grep MemAvailable /proc/meminfo; {} --version",
         shell_quote(&spec.binary)
     );
-    let child = ssh_command(spec, &remote)
-        .stdin(Stdio::null())
+    let mut cmd = ssh_command(spec, &remote);
+    cmd.stdin(Stdio::null())
         .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
+        .stderr(Stdio::piped());
+    end_with_parent(&mut cmd);
+    let child = cmd
         .spawn()
         .context("cannot run ssh (is the OpenSSH client installed?)")?;
     let out =
@@ -179,6 +203,8 @@ pub struct SshWorker {
     pub report: HostReport,
     child: Child,
     stdin: Option<ChildStdin>,
+    /// Ends the ssh client on a signal; dropped before it is reaped.
+    registration: Option<Registration>,
 }
 
 impl SshWorker {
@@ -190,6 +216,7 @@ impl SshWorker {
     /// Closes the session's stdin (the worker exits), then ends the ssh client.
     pub fn stop(&mut self) {
         drop(self.stdin.take());
+        self.registration = None;
         let start = Instant::now();
         while start.elapsed() < Duration::from_secs(3) {
             if let Ok(Some(_)) = self.child.try_wait() {
@@ -224,15 +251,19 @@ fn launch_one(spec: &LaunchSpec, report: HostReport, token: &str, log: &Path) ->
         .stdout(Stdio::piped())
         .stderr(Stdio::from(log_file));
     end_with_parent(&mut cmd);
-    let mut child = cmd.spawn().context("cannot run ssh")?;
-    let mut stdin = child.stdin.take().context("ssh stdin")?;
-    let stdout = child.stdout.take().context("ssh stdout")?;
+    let (child, registration) = spawn_registered(&mut cmd, true, Path::new("ssh"))?;
     let mut worker = SshWorker {
         address: String::new(),
         ssh: spec.ssh.clone(),
         report,
         child,
         stdin: None,
+        registration: Some(registration),
+    };
+    let (Some(mut stdin), Some(stdout)) = (worker.child.stdin.take(), worker.child.stdout.take())
+    else {
+        worker.stop();
+        bail!("ssh to {} gave no stdin or stdout pipe", spec.ssh);
     };
     if let Err(e) = writeln!(stdin, "{token}").and_then(|()| stdin.flush()) {
         worker.stop();
@@ -268,6 +299,8 @@ pub struct SshWorkers {
     pub skipped: Vec<Skipped>,
     token: String,
     dir: tempfile::TempDir,
+    /// Removes `dir` on a signal.
+    _dir_registration: Registration,
 }
 
 impl std::fmt::Debug for SshWorkers {
@@ -284,15 +317,13 @@ impl SshWorkers {
     /// Checks every host and launches a worker on each suitable one. Hosts that
     /// fail are skipped (with a warning and a reason in [`Self::skipped`]).
     pub fn launch(hosts: &[LaunchSpec]) -> Result<Self> {
-        let dir = tempfile::Builder::new()
-            .prefix("texsyn-ssh-workers-")
-            .tempdir()
-            .context("cannot create a directory for the ssh worker logs")?;
+        let (dir, dir_registration) = temp_dir("ssh-workers")?;
         let mut out = Self {
             workers: Vec::new(),
             skipped: Vec::new(),
             token: new_token(),
             dir,
+            _dir_registration: dir_registration,
         };
         for (k, spec) in hosts.iter().enumerate() {
             let result = check_host(spec).and_then(|report| {
@@ -366,6 +397,28 @@ mod tests {
         assert_eq!(r.version, "texsyn-worker 0.1.0");
         assert!(parse_check_output("8\n0.5 0 0\nMemAvailable: 10 kB\n").is_err());
         assert!(parse_check_output("").is_err());
+    }
+
+    #[test]
+    fn absurd_host_figures_are_rejected() {
+        let check = |cores: &str, load: &str, mem: &str| {
+            parse_check_output(&format!(
+                "{cores}\n{load} 0 0 1/2 3\nMemAvailable: {mem} kB\ntexsyn-worker 0.1.0\n"
+            ))
+        };
+        assert!(check("4", "0.5", "1024").is_ok());
+        for mem in [
+            "18446744073709551615",
+            "18014398509481984",
+            "1125899906842625",
+        ] {
+            let e = format!("{:#}", check("4", "0.5", mem).unwrap_err());
+            assert!(e.contains("MemAvailable") && e.contains(mem), "{e}");
+        }
+        assert!(check("0", "0.5", "1024").is_err());
+        assert!(check("99999999999", "0.5", "1024").is_err());
+        assert!(check("4", "nan", "1024").is_err());
+        assert!(check("4", "-1", "1024").is_err());
     }
 
     #[test]

@@ -6,11 +6,10 @@
 
 use std::process::ExitCode;
 
-use clap::Parser;
-use texsyn_worker::cli::{self, Cli};
+use texsyn_worker::cli;
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = cli::parse_args();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
