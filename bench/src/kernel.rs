@@ -38,8 +38,8 @@ pub struct KernelArgs {
     /// Share of query components defined (masks), 0..=1.
     #[arg(long, default_value_t = 1.0)]
     defined: f64,
-    /// Minimum seconds per measurement (best repetition reported).
-    #[arg(long, default_value_t = 1.0)]
+    /// Minimum seconds per measurement (best repetition reported), 0..=3600.
+    #[arg(long, default_value_t = 1.0, value_parser = min_time)]
     min_time: f64,
     /// Raw u8 vector file (`vectors × (dims + lo-dims)` bytes) instead of random vectors.
     #[arg(long)]
@@ -143,7 +143,7 @@ fn measure(a: &KernelArgs, kernel: Kernel) -> Result<KernelReport> {
         .num_threads(threads)
         .build()
         .context("thread pool")?;
-    let min_time = Duration::from_secs_f64(a.min_time.max(0.0));
+    let min_time = Duration::try_from_secs_f64(a.min_time)?;
     let engine = Engine::new(kernel);
     let params = Params::default();
     let range = space.start()..space.end();
@@ -234,5 +234,24 @@ impl std::fmt::Display for KernelReport {
             )?;
         }
         Ok(())
+    }
+}
+
+/// `--min-time`: finite seconds in 0..=3600.
+fn min_time(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && (0.0..=3600.0).contains(&v) => Ok(v),
+        _ => Err(format!("'{s}' is not a time in seconds between 0 and 3600")),
+    }
+}
+
+#[cfg(test)]
+mod min_time_tests {
+    #[test]
+    fn min_time_refuses_what_a_duration_cannot_hold() {
+        for bad in ["inf", "nan", "-1", "1e300", "x"] {
+            assert!(super::min_time(bad).is_err(), "{bad}");
+        }
+        assert_eq!(super::min_time("0.5"), Ok(0.5));
     }
 }
