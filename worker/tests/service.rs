@@ -931,6 +931,123 @@ async fn oversized_parents_and_top_k_are_refused_before_allocation() {
     w.shutdown().await;
 }
 
+/// Reads from `s` until the peer closes it (or 5 s pass): how long that took.
+async fn closed_after(s: &mut tokio::net::TcpStream) -> Option<Duration> {
+    use tokio::io::AsyncReadExt;
+    let t = std::time::Instant::now();
+    let mut buf = [0u8; 4096];
+    loop {
+        match tokio::time::timeout(Duration::from_secs(5), s.read(&mut buf)).await {
+            Ok(Ok(0)) | Ok(Err(_)) => return Some(t.elapsed()),
+            Ok(Ok(_)) => continue,
+            Err(_) => return None,
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn silent_unauthenticated_and_surplus_connections_are_closed() {
+    use tokio::io::AsyncWriteExt;
+    use tokio::net::TcpStream;
+    let limits = service::ConnectionLimits {
+        max_connections: 8,
+        first_byte: Duration::from_millis(300),
+        authenticate: Duration::from_millis(800),
+    };
+    let w = Worker::start(WorkerConfig {
+        token: Some("0123456789abcdef".into()),
+        connections: limits,
+        ..config()
+    })
+    .await;
+    // Silent: closed after the first-byte timeout.
+    let mut silent = TcpStream::connect(w.addr).await.unwrap();
+    let took = closed_after(&mut silent)
+        .await
+        .expect("a silent socket is closed");
+    assert!(
+        took >= Duration::from_millis(250) && took < Duration::from_secs(2),
+        "{took:?}"
+    );
+
+    // An HTTP/2 client that never makes an authenticated call: closed after
+    // the authentication timeout, even though it answers pings.
+    let mut h2 = TcpStream::connect(w.addr).await.unwrap();
+    h2.write_all(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\x00\x00\x00\x04\x00\x00\x00\x00\x00")
+        .await
+        .unwrap();
+    let took = closed_after(&mut h2)
+        .await
+        .expect("an idle HTTP/2 connection is closed");
+    assert!(
+        took >= Duration::from_millis(600) && took < Duration::from_secs(3),
+        "{took:?}"
+    );
+
+    // A client with the wrong token gets UNAUTHENTICATED and is then closed.
+    let mut wrong = connect(w.addr, Some("wrong-token-000000")).await;
+    let e = wrong
+        .info(pb::InfoRequest {
+            protocol_version: PROTOCOL_VERSION,
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::Unauthenticated);
+
+    // A real client keeps its connection past both timeouts.
+    let mut good = connect(w.addr, Some("0123456789abcdef")).await;
+    let info = pb::InfoRequest {
+        protocol_version: PROTOCOL_VERSION,
+    };
+    good.info(info.clone()).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(1200)).await;
+    good.info(info.clone()).await.unwrap();
+
+    // Over the connection limit: the surplus is closed at once, and a flood
+    // of silent sockets cannot keep a new client out for long.
+    let mut held = Vec::new();
+    for _ in 0..7 {
+        held.push(TcpStream::connect(w.addr).await.unwrap());
+    }
+    let mut surplus = TcpStream::connect(w.addr).await.unwrap();
+    let took = closed_after(&mut surplus)
+        .await
+        .expect("the surplus is closed");
+    assert!(took < Duration::from_millis(250), "{took:?}");
+    good.info(info.clone()).await.unwrap();
+    drop(held);
+    w.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_flood_of_silent_sockets_does_not_keep_a_client_out() {
+    use tokio::net::TcpStream;
+    let w = Worker::start(WorkerConfig {
+        connections: service::ConnectionLimits {
+            max_connections: 4096,
+            ..Default::default()
+        },
+        ..config()
+    })
+    .await;
+    let mut flood = Vec::new();
+    for _ in 0..2000 {
+        flood.push(TcpStream::connect(w.addr).await.unwrap());
+    }
+    // The 5 s first-byte timeout has not passed: the silent sockets were
+    // pushed out by newer ones, so a new client gets in at once.
+    let t = std::time::Instant::now();
+    let mut c = connect(w.addr, None).await;
+    c.info(pb::InfoRequest {
+        protocol_version: PROTOCOL_VERSION,
+    })
+    .await
+    .unwrap();
+    assert!(t.elapsed() < Duration::from_secs(2), "{:?}", t.elapsed());
+    drop(flood);
+    w.shutdown().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn protocol_version_mismatch_is_failed_precondition() {
     let (w, mut c) = start(config()).await;

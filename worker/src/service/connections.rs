@@ -1,15 +1,17 @@
 //! The worker's front door (ARCHITECTURE §4.5): connections are accepted here
 //! and handed to the gRPC server only when they behave.
 //!
-//! - At most `max_connections` are open at once; one more is closed at accept.
+//! - At most `max_connections` are served at once; one more is closed.
 //! - A connection that sends no byte within the first-byte timeout is closed
-//!   before any TLS or HTTP/2 work is done for it.
+//!   before any TLS or HTTP/2 work is done for it. At most [`MAX_SILENT`]
+//!   wait for their first byte; a new one pushes out the oldest, so a flood
+//!   of idle sockets cannot keep a master out.
 //! - A connection that has made no call past the token check within the
 //!   authentication timeout is closed, so idle or unauthenticated sockets are
 //!   not kept forever.
 //! - TCP keepalive probes find peers that vanished without a FIN.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::future::Future;
 use std::io;
 use std::net::SocketAddr;
@@ -21,7 +23,7 @@ use std::time::Duration;
 
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{mpsc, OwnedSemaphorePermit, Semaphore};
+use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 use tokio::time::Sleep;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::service::Interceptor;
@@ -30,6 +32,8 @@ use tonic::{Request, Status};
 
 /// Default most open connections.
 pub const DEFAULT_MAX_CONNECTIONS: usize = 256;
+/// Most connections waiting for their first byte.
+pub const MAX_SILENT: usize = 64;
 /// How long a new connection has to send its first byte.
 pub const FIRST_BYTE_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long a connection has to make its first authenticated call.
@@ -187,6 +191,38 @@ impl Connected for Guarded {
     }
 }
 
+/// The connections waiting for their first byte, oldest first, each with the
+/// switch that closes it.
+#[derive(Default)]
+struct Silent {
+    waiting: Mutex<(u64, VecDeque<(u64, oneshot::Sender<()>)>)>,
+}
+
+impl Silent {
+    /// Registers a new connection (pushing out the oldest when
+    /// [`MAX_SILENT`] wait already): its id and its close signal.
+    fn enter(&self) -> (u64, oneshot::Receiver<()>) {
+        let (close, closed) = oneshot::channel();
+        let mut w = self.waiting.lock().unwrap_or_else(|e| e.into_inner());
+        let id = w.0;
+        w.0 += 1;
+        while w.1.len() >= MAX_SILENT {
+            if let Some((_, oldest)) = w.1.pop_front() {
+                let _ = oldest.send(());
+            }
+        }
+        w.1.push_back((id, close));
+        (id, closed)
+    }
+
+    fn leave(&self, id: u64) {
+        let mut w = self.waiting.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(k) = w.1.iter().position(|(i, _)| *i == id) {
+            w.1.remove(k);
+        }
+    }
+}
+
 /// Sets TCP_NODELAY and keepalive probes on an accepted socket.
 fn tune(stream: &TcpStream) -> io::Result<()> {
     stream.set_nodelay(true)?;
@@ -207,6 +243,7 @@ pub(crate) fn incoming(
 ) -> ReceiverStream<io::Result<Guarded>> {
     let (tx, rx) = mpsc::channel(64);
     let slots = Arc::new(Semaphore::new(limits.max_connections));
+    let silent = Arc::new(Silent::default());
     tokio::spawn(async move {
         loop {
             let accepted = tokio::select! {
@@ -222,26 +259,46 @@ pub(crate) fn incoming(
                     continue;
                 }
             };
-            let Ok(slot) = slots.clone().try_acquire_owned() else {
-                tracing::warn!(%peer, max = limits.max_connections, "connection limit reached; closing the new connection");
-                continue;
-            };
+            let (id, evicted) = silent.enter();
             if let Err(e) = tune(&stream) {
                 tracing::debug!(%peer, error = %e, "cannot set socket options");
             }
-            let (tx, registry) = (tx.clone(), registry.clone());
+            let (tx, registry, silent, slots) =
+                (tx.clone(), registry.clone(), silent.clone(), slots.clone());
             tokio::spawn(async move {
-                match tokio::time::timeout(limits.first_byte, stream.readable()).await {
-                    Ok(Ok(())) => {}
-                    Ok(Err(e)) => {
+                // `peek` waits for a byte really there (readiness alone can be
+                // reported for a socket that has sent nothing).
+                let mut byte = [0u8; 1];
+                let first = tokio::select! {
+                    r = tokio::time::timeout(limits.first_byte, stream.peek(&mut byte)) => Some(r),
+                    _ = evicted => None,
+                };
+                silent.leave(id);
+                match first {
+                    Some(Ok(Ok(0))) => {
+                        tracing::debug!(%peer, "connection closed before its first byte");
+                        return;
+                    }
+                    Some(Ok(Ok(_))) => {}
+                    Some(Ok(Err(e))) => {
                         tracing::debug!(%peer, error = %e, "connection failed before its first byte");
                         return;
                     }
-                    Err(_) => {
+                    Some(Err(_)) => {
                         tracing::debug!(%peer, "no first byte in {:?}; closing the connection", limits.first_byte);
                         return;
                     }
+                    None => {
+                        tracing::debug!(%peer, "pushed out by newer connections before its first byte");
+                        return;
+                    }
                 }
+                // Only connections that speak hold a slot, so silent ones
+                // never keep a client out.
+                let Ok(slot) = slots.try_acquire_owned() else {
+                    tracing::warn!(%peer, max = limits.max_connections, "connection limit reached; closing the new connection");
+                    return;
+                };
                 let authenticated = registry.add(peer);
                 let conn = Guarded {
                     stream,

@@ -1,0 +1,240 @@
+//! A real `texsyn-worker` process under load it was not built for, driven by
+//! a raw gRPC client (ARCHITECTURE §4.5): jobs that together ask for more than
+//! the memory budget, a thousand concurrent search streams on one connection
+//! and two thousand idle sockets. The worker answers each call with a result
+//! or a status, keeps serving, and its reservations and its peak RSS stay
+//! within the budget.
+
+mod harness;
+
+use std::time::{Duration, Instant};
+
+use harness::{alive, Token, Worker};
+use texsyn_proto::auth::BearerAuth;
+use texsyn_proto::v1 as pb;
+use texsyn_proto::PROTOCOL_VERSION;
+use tonic::Code;
+
+type RawClient = pb::worker_client::WorkerClient<
+    tonic::codegen::InterceptedService<tonic::transport::Channel, BearerAuth>,
+>;
+
+/// Budget of the worker under test.
+const BUDGET: u64 = 64 << 20;
+/// What the process holds beyond its reservations: the binary, thread stacks,
+/// the runtime and HTTP/2 buffers of the connections.
+const BASE_RSS: u64 = 96 << 20;
+
+async fn client(addr: std::net::SocketAddr, token: &str) -> RawClient {
+    let ch = tonic::transport::Channel::from_shared(format!("http://{addr}"))
+        .unwrap()
+        .timeout(Duration::from_secs(60))
+        .connect()
+        .await
+        .unwrap();
+    pb::worker_client::WorkerClient::with_interceptor(ch, BearerAuth::new(Some(token)).unwrap())
+}
+
+fn info() -> pb::InfoRequest {
+    pb::InfoRequest {
+        protocol_version: PROTOCOL_VERSION,
+    }
+}
+
+/// A `side`² level of job `job` with a 9×9 neighbourhood and its parent.
+fn level(job: &str, side: u32) -> pb::LoadLevelPart {
+    let px = |w: u32, h: u32, seed: u32| pb::Plane {
+        width: w,
+        height: h,
+        pixels: (0..w * h)
+            .map(|i| (i.wrapping_mul(2_654_435_761).wrapping_add(seed) >> 13) as u8)
+            .collect(),
+        defined: Vec::new(),
+    };
+    pb::LoadLevelPart::from(pb::LoadLevelRequest {
+        job_id: job.into(),
+        level: 0,
+        geometry: Some(pb::Geometry {
+            neighbourhood: 9,
+            parent_window: 5,
+            weight_hi: 1,
+            weight_lo: 1,
+            metric: 0,
+        }),
+        sample: Some(px(side, side, 1)),
+        parent: Some(px(side.div_ceil(2), side.div_ceil(2), 2)),
+    })
+}
+
+fn assign(job: &str, end: u64) -> pb::AssignRequest {
+    pb::AssignRequest {
+        job_id: job.into(),
+        level: 0,
+        start: 0,
+        end,
+        lbg_probes: 0,
+        epoch: 0,
+    }
+}
+
+/// Peak resident set size of `pid` (VmHWM), in bytes.
+fn peak_rss(pid: u32) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+        })
+        .map_or(0, |kb| kb * 1024)
+}
+
+#[test]
+fn competing_jobs_and_a_thousand_streams_stay_within_the_budget() {
+    let token = Token::new();
+    let budget = format!("{}", BUDGET);
+    let path = token.path.to_str().unwrap().to_string();
+    let w = Worker::start(
+        30,
+        &[
+            "--threads",
+            "2",
+            "--token-file",
+            &path,
+            "--max-memory",
+            &budget,
+            "--vector-store",
+            "dense",
+        ],
+    );
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let c = client(w.address, &token.value).await;
+        // Four jobs, each with a level whose whole range needs over half the budget.
+        let jobs = ["j0", "j1", "j2", "j3"];
+        let mut total = 0;
+        for j in jobs {
+            let r = c
+                .clone()
+                .load_level(tokio_stream::iter([level(j, 560)]))
+                .await
+                .unwrap()
+                .into_inner();
+            total = r.total_vectors;
+        }
+        let calls: Vec<_> = jobs
+            .iter()
+            .map(|j| {
+                let mut c = c.clone();
+                let j = j.to_string();
+                tokio::spawn(async move { (j.clone(), c.assign(assign(&j, total)).await) })
+            })
+            .collect();
+        let mut held = Vec::new();
+        for call in calls {
+            let (j, r) = call.await.unwrap();
+            match r {
+                Ok(a) => {
+                    let bytes = a.into_inner().bytes;
+                    assert!(bytes > BUDGET / 2, "{bytes}");
+                    held.push(j);
+                }
+                Err(e) => assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}"),
+            }
+        }
+        assert_eq!(held.len(), 1, "exactly one range fits: {held:?}");
+
+        // A thousand search streams at once on the one connection.
+        let dims = 81 + 25;
+        let calls: Vec<_> = (0..1000u64)
+            .map(|k| {
+                let mut c = c.clone();
+                let job = held[0].clone();
+                tokio::spawn(async move {
+                    let batch = pb::SearchBatch {
+                        job_id: job,
+                        level: 0,
+                        batch_id: k,
+                        top_k: 1,
+                        count: 8,
+                        values: (0..8 * dims).map(|i| (i as u64 * 31 + k) as u8).collect(),
+                        masks: vec![1; 8 * dims],
+                        epoch: 0,
+                        bound_index: Vec::new(),
+                        bound_distance: Vec::new(),
+                    };
+                    let mut s = c.search(tokio_stream::iter([batch])).await?.into_inner();
+                    let r = s.message().await?;
+                    Ok::<_, tonic::Status>(r.map(|r| r.hits.len()))
+                })
+            })
+            .collect();
+        let (mut ok, mut refused) = (0, 0);
+        for call in calls {
+            match call.await.unwrap() {
+                Ok(Some(n)) => {
+                    assert_eq!(n, 8);
+                    ok += 1;
+                }
+                Ok(None) => panic!("a stream ended without an answer or a status"),
+                Err(e) => {
+                    assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
+                    refused += 1;
+                }
+            }
+        }
+        assert!(ok > 0, "some streams are served ({refused} refused)");
+        let i = c.clone().info(info()).await.unwrap().into_inner();
+        assert!(i.memory_peak <= BUDGET, "reserved {} > {BUDGET}", i.memory_peak);
+        let rss = peak_rss(w.pid());
+        eprintln!(
+            "1000 streams: {ok} answered, {refused} refused; reserved peak {} MiB of {} MiB; worker peak RSS {} MiB",
+            i.memory_peak >> 20,
+            BUDGET >> 20,
+            rss >> 20
+        );
+        assert!(rss > 0 && rss <= BUDGET + BASE_RSS, "peak RSS {rss}");
+    });
+    assert!(alive(w.pid()));
+}
+
+#[test]
+fn two_thousand_idle_sockets_do_not_stop_a_worker_from_serving() {
+    let token = Token::new();
+    let w = Worker::with_token(31, &token, 1);
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let mut c = client(w.address, &token.value).await;
+        c.info(info()).await.unwrap();
+        let mut idle = Vec::new();
+        for _ in 0..2000 {
+            match tokio::net::TcpStream::connect(w.address).await {
+                Ok(s) => idle.push(s),
+                Err(e) => panic!("connect {} failed: {e}", idle.len()),
+            }
+        }
+        // The open connection keeps working, and a new client gets in at once.
+        let t = Instant::now();
+        c.info(info()).await.unwrap();
+        let mut fresh = client(w.address, &token.value).await;
+        fresh.info(info()).await.unwrap();
+        assert!(t.elapsed() < Duration::from_secs(3), "{:?}", t.elapsed());
+        drop(idle);
+        // Every silent socket is closed within the first-byte timeout: the
+        // worker holds a handful of descriptors again.
+        tokio::time::sleep(Duration::from_secs(6)).await;
+        let fds = std::fs::read_dir(format!("/proc/{}/fd", w.pid()))
+            .map(|d| d.count())
+            .unwrap_or(0);
+        assert!(fds < 64, "the worker still holds {fds} descriptors");
+    });
+    assert!(alive(w.pid()));
+}
