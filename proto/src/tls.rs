@@ -91,10 +91,10 @@ pub struct TlsArgs {
     #[arg(long, value_name = "NAME")]
     pub tls_domain: Option<String>,
     /// Client certificate (PEM) for workers that require one (mutual TLS); needs --tls-client-key.
-    #[arg(long, value_name = "FILE", requires = "tls_client_key")]
+    #[arg(long, value_name = "FILE")]
     pub tls_client_cert: Option<PathBuf>,
     /// Private key (PEM) of --tls-client-cert.
-    #[arg(long, value_name = "FILE", requires = "tls_client_cert")]
+    #[arg(long, value_name = "FILE")]
     pub tls_client_key: Option<PathBuf>,
 }
 
@@ -120,8 +120,12 @@ impl TlsArgs {
                 read_pem(k, "--tls-client-key", KEY)?,
             )),
             (None, None) => None,
-            (Some(_), None) => bail!("--tls-client-cert needs --tls-client-key"),
-            (None, Some(_)) => bail!("--tls-client-key needs --tls-client-cert"),
+            (Some(_), None) => {
+                bail!("--tls-client-cert needs --tls-client-key FILE with its private key")
+            }
+            (None, Some(_)) => {
+                bail!("--tls-client-key needs --tls-client-cert FILE with its certificate")
+            }
         };
         if let Some(d) = &self.tls_domain {
             ensure!(

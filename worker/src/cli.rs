@@ -83,7 +83,7 @@ pub struct ServeArgs {
     pub tls_key: Option<PathBuf>,
     /// Mutual TLS: require every client to present a certificate signed by
     /// this CA (PEM); needs --tls-cert and --tls-key.
-    #[arg(long, value_name = "FILE", requires = "tls_cert")]
+    #[arg(long, value_name = "FILE")]
     pub tls_client_ca: Option<PathBuf>,
     /// Most memory the worker may hold for all jobs and calls together, in
     /// bytes (suffixes K, M, G allowed; default 3/4 of the RAM or of the
