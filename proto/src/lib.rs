@@ -1,9 +1,11 @@
 //! The texsyn cluster protocol: tonic/prost code generated from
 //! `proto/texsyn.proto`, the conversions between it and the engine's types
-//! ([`wire`]) and the shared-token handling ([`auth`]). Master and worker both
+//! ([`wire`]), the shared-token handling ([`auth`]) and worker addresses with
+//! client TLS ([`tls`]). Master and worker both
 //! speak through this crate only.
 
 pub mod auth;
+pub mod tls;
 pub mod wire;
 
 /// Protocol version spoken by this build; master and worker refuse to talk across versions.

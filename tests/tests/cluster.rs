@@ -814,7 +814,10 @@ fn tls_cluster_matches_the_local_engine() {
         Some(token.value.clone()),
     );
     let c = connect(ClusterOptions {
-        tls_ca: Some(std::fs::read(&cert).unwrap()),
+        tls: texsyn_proto::tls::ClientTls {
+            ca_pem: Some(std::fs::read(&cert).unwrap()),
+            ..Default::default()
+        },
         require_cluster: true,
         ..options(vec![spec.clone()])
     });

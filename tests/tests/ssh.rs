@@ -425,3 +425,86 @@ fn cluster_status_prints_a_table_of_the_workers() {
         .unwrap();
     assert!(!out.status.success());
 }
+
+/// `--launch` with TLS: the hosts entries give the workers' certificate, key
+/// and client CA (paths on the host); the master's `--tls-*` flags apply to
+/// them. The output is bit-identical to a local run; without a client
+/// certificate the launched workers refuse the master; `--tls-ca` with an
+/// entry that would launch a plaintext worker is refused up front.
+#[test]
+fn workers_launched_over_ssh_with_mutual_tls_match_a_local_run() {
+    let Some(sshd) = sshd_or_skip() else { return };
+    let pki_dir = tempfile::tempdir().unwrap();
+    let Some(pki) = texsyn_integration::test_pki(pki_dir.path()) else {
+        return;
+    };
+    let (plain_hosts, marker) = hosts_file(&sshd, "tls");
+    let entries = std::fs::read_to_string(&plain_hosts).unwrap().replace(
+        "threads = 1\n",
+        &format!(
+            "threads = 1\ntls_cert = \"{}\"\ntls_key = \"{}\"\ntls_client_ca = \"{}\"\n",
+            pki.server_cert.display(),
+            pki.server_key.display(),
+            pki.client_ca.display()
+        ),
+    );
+    let hosts = sshd.dir.path().join("hosts-tls-on.toml");
+    std::fs::write(&hosts, entries).unwrap();
+    let out_dir = tempfile::tempdir().unwrap();
+    let synth = |out: &str, search: &str| {
+        let mut c = Command::new(harness::binary("texsyn"));
+        c.arg("synth")
+            .arg(texture_path("brick_color_96.png"))
+            .args(["--size", "96x96", "--levels", "3", "--seed", "3", "-q"])
+            .args(["--search", search, "-o"])
+            .arg(out_dir.path().join(out));
+        c
+    };
+    let local = synth("local.png", "local,local,local").output().unwrap();
+    assert!(local.status.success(), "{local:?}");
+    let tls_ca = ["--tls-ca", pki.ca.to_str().unwrap()];
+    let client = [
+        "--tls-client-cert",
+        pki.client_cert.to_str().unwrap(),
+        "--tls-client-key",
+        pki.client_key.to_str().unwrap(),
+    ];
+    let o = synth("tls.png", "cluster,cluster,cluster")
+        .arg("--hosts")
+        .arg(&hosts)
+        .args(["--launch", "--require-cluster"])
+        .args(tls_ca)
+        .args(client)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        std::fs::read(out_dir.path().join("local.png")).unwrap()
+            == std::fs::read(out_dir.path().join("tls.png")).unwrap(),
+        "output of the TLS workers launched over ssh differs from the local run"
+    );
+    // Without the client certificate the launched workers refuse the master.
+    let o = synth("refused.png", "cluster,cluster,cluster")
+        .arg("--hosts")
+        .arg(&hosts)
+        .args(["--launch", "--require-cluster"])
+        .args(tls_ca)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("--tls-client-cert"), "{e}");
+    // --tls-ca with entries that would launch plaintext workers.
+    let o = synth("plain.png", "cluster,cluster,cluster")
+        .arg("--hosts")
+        .arg(&plain_hosts)
+        .args(["--launch", "--require-cluster"])
+        .args(tls_ca)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("tls_cert") && e.contains("hosts file"), "{e}");
+    let left = wait_gone(&marker, Duration::from_secs(8));
+    assert!(left.is_empty(), "workers left after the runs: {left:?}");
+}

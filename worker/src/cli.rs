@@ -13,6 +13,7 @@ use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 use texsyn_engine::{Kernel, Storage};
 use texsyn_proto::auth::{read_token, read_token_file};
+use texsyn_proto::tls::TlsArgs;
 
 use crate::service::{TlsIdentity, WorkerConfig, DEFAULT_LISTEN};
 
@@ -50,7 +51,7 @@ pub enum Command {
 
 #[derive(clap::Args)]
 pub struct HealthArgs {
-    /// Worker address host:port.
+    /// Worker address: host:port, https://host:port (TLS) or http://host:port.
     #[arg(long, default_value = DEFAULT_LISTEN)]
     pub address: String,
     /// File holding the shared token, if the worker requires one.
@@ -60,6 +61,8 @@ pub struct HealthArgs {
     #[arg(long, default_value_t = 3.0, value_name = "SECONDS",
           value_parser = |s: &str| parse_seconds(s, HEALTH_TIMEOUT.0, HEALTH_TIMEOUT.1))]
     pub timeout: f64,
+    #[command(flatten)]
+    pub tls: TlsArgs,
 }
 
 #[derive(clap::Args, Debug)]
@@ -79,6 +82,10 @@ pub struct ServeArgs {
     /// TLS private key (PEM); needs --tls-cert.
     #[arg(long, requires = "tls_cert")]
     pub tls_key: Option<PathBuf>,
+    /// Mutual TLS: require every client to present a certificate signed by
+    /// this CA (PEM); needs --tls-cert and --tls-key.
+    #[arg(long, value_name = "FILE")]
+    pub tls_client_ca: Option<PathBuf>,
     /// Most memory the worker may hold for all jobs and calls together, in
     /// bytes (suffixes K, M, G allowed; default 3/4 of the RAM or of the
     /// control group's memory limit, whichever is smaller).
@@ -203,7 +210,16 @@ impl TryFrom<ServeArgs> for WorkerConfig {
             a.token_file.as_deref().map(read_token_file).transpose()?
         };
         let tls = match (&a.tls_cert, &a.tls_key) {
-            (Some(c), Some(k)) => Some(TlsIdentity::from_files(c, k)?),
+            (Some(c), Some(k)) => {
+                let id = TlsIdentity::from_files(c, k)?;
+                Some(match &a.tls_client_ca {
+                    Some(ca) => id.with_client_ca(ca)?,
+                    None => id,
+                })
+            }
+            (None, None) if a.tls_client_ca.is_some() => {
+                bail!("--tls-client-ca needs --tls-cert and --tls-key: mutual TLS is TLS first")
+            }
             (None, None) => None,
             (Some(_), None) => bail!("--tls-cert was given without --tls-key; TLS needs both"),
             (None, Some(_)) => bail!("--tls-key was given without --tls-cert; TLS needs both"),
@@ -249,6 +265,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Health(a)) => crate::health::check(
             &a.address,
             a.token_file.as_deref(),
+            &a.tls.load()?,
             seconds(a.timeout, HEALTH_TIMEOUT.0, HEALTH_TIMEOUT.1)
                 .map_err(|e| anyhow::anyhow!("--timeout: {e}"))?,
         ),

@@ -999,9 +999,9 @@ async fn silent_unauthenticated_and_surplus_connections_are_closed() {
     let info = pb::InfoRequest {
         protocol_version: PROTOCOL_VERSION,
     };
-    good.info(info.clone()).await.unwrap();
+    good.info(info).await.unwrap();
     tokio::time::sleep(Duration::from_millis(1200)).await;
-    good.info(info.clone()).await.unwrap();
+    good.info(info).await.unwrap();
 
     // Over the connection limit: the surplus is closed at once, and a flood
     // of silent sockets cannot keep a new client out for long.
@@ -1014,7 +1014,7 @@ async fn silent_unauthenticated_and_surplus_connections_are_closed() {
         .await
         .expect("the surplus is closed");
     assert!(took < Duration::from_millis(250), "{took:?}");
-    good.info(info.clone()).await.unwrap();
+    good.info(info).await.unwrap();
     drop(held);
     w.shutdown().await;
 }
@@ -1248,5 +1248,60 @@ async fn tls_with_token_serves() {
             .await
             .is_err());
     }
+    w.shutdown().await;
+}
+
+/// Mutual TLS (`TlsIdentity::client_ca_pem`): a client without a certificate
+/// or with one of another CA gets no answer; one signed by the client CA does,
+/// through the same client TLS code the master uses.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mutual_tls_requires_a_client_certificate_of_the_client_ca() {
+    use texsyn_proto::tls::TlsArgs;
+    let dir = tempfile::tempdir().unwrap();
+    let Some(pki) = texsyn_integration::test_pki(dir.path()) else {
+        return;
+    };
+    let tls = service::TlsIdentity::from_files(&pki.server_cert, &pki.server_key)
+        .unwrap()
+        .with_client_ca(&pki.client_ca)
+        .unwrap();
+    let w = Worker::start(WorkerConfig {
+        tls: Some(tls),
+        ..config()
+    })
+    .await;
+    let address = format!("https://127.0.0.1:{}", w.addr.port());
+    let info = |client: Option<(&std::path::Path, &std::path::Path)>| {
+        let args = TlsArgs {
+            tls_ca: Some(pki.ca.clone()),
+            tls_client_cert: client.map(|c| c.0.to_path_buf()),
+            tls_client_key: client.map(|c| c.1.to_path_buf()),
+            ..Default::default()
+        };
+        let address = address.clone();
+        async move {
+            let endpoint = args
+                .load()
+                .unwrap()
+                .endpoint(&address, Duration::from_secs(5))
+                .unwrap();
+            let ch = endpoint.connect().await.map_err(|e| e.to_string())?;
+            let mut c = pb::worker_client::WorkerClient::new(ch);
+            c.info(pb::InfoRequest {
+                protocol_version: PROTOCOL_VERSION,
+            })
+            .await
+            .map(|r| r.into_inner().protocol_version)
+            .map_err(|s| s.to_string())
+        }
+    };
+    assert!(info(None).await.is_err());
+    assert!(info(Some((&pki.other_client_cert, &pki.other_client_key)))
+        .await
+        .is_err());
+    assert_eq!(
+        info(Some((&pki.client_cert, &pki.client_key))).await,
+        Ok(PROTOCOL_VERSION)
+    );
     w.shutdown().await;
 }

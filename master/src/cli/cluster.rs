@@ -6,9 +6,10 @@
 use std::ffi::OsString;
 use std::path::PathBuf;
 
-use anyhow::{bail, ensure, Context, Result};
+use anyhow::{bail, ensure, Result};
 use clap::Args;
 use texsyn_proto::auth::read_token_file;
+use texsyn_proto::tls::{ClientTls, TlsArgs};
 
 use super::{parse_seconds, seconds};
 use crate::cluster::{status, ClusterOptions, WorkerSpec};
@@ -26,9 +27,8 @@ pub struct ClusterArgs {
     /// Shared token of the workers (the file holds the secret).
     #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
-    /// CA certificate (PEM) of the workers' TLS certificates; turns TLS on.
-    #[arg(long, value_name = "FILE")]
-    pub tls_ca: Option<PathBuf>,
+    #[command(flatten)]
+    pub tls: TlsArgs,
     /// Hosts file (TOML): [[worker]] entries with address = "host:port" and optional token_file.
     #[arg(long, value_name = "FILE")]
     pub hosts: Option<PathBuf>,
@@ -101,16 +101,8 @@ impl ClusterArgs {
         if self.launch && launch.is_empty() {
             bail!("--launch: the hosts file has no [[worker]] entry with ssh = \"user@host\"");
         }
-        if self.launch && self.tls_ca.is_some() {
-            bail!("--tls-ca cannot be used with --launch: launched workers serve without TLS");
-        }
-        let tls_ca = self
-            .tls_ca
-            .as_ref()
-            .map(|p| {
-                std::fs::read(p).with_context(|| format!("cannot read --tls-ca {}", p.display()))
-            })
-            .transpose()?;
+        let tls = self.tls.load()?;
+        check_launch_tls(&launch, &tls)?;
         let local = self.start_local_workers()?;
         if let Some(l) = &local {
             workers.extend(l.specs());
@@ -122,7 +114,7 @@ impl ClusterArgs {
             workers.extend(s.specs());
         }
         let options = ClusterOptions {
-            tls_ca,
+            tls,
             skipped_hosts,
             ..self.options(workers)?
         };
@@ -139,7 +131,9 @@ impl ClusterArgs {
             (self.require_cluster, "--require-cluster"),
             (self.master_share, "--master-share"),
             (self.token_file.is_some(), "--token-file"),
-            (self.tls_ca.is_some(), "--tls-ca"),
+            (self.tls.tls_ca.is_some(), "--tls-ca"),
+            (self.tls.tls_domain.is_some(), "--tls-domain"),
+            (self.tls.tls_client_cert.is_some(), "--tls-client-cert"),
             (self.worker_binary.is_some(), "--worker-binary"),
             (
                 self.local_worker_threads.is_some(),
@@ -167,8 +161,8 @@ impl ClusterArgs {
                 "--local-worker-threads {t} must be in 1..=1024"
             );
         }
-        if self.local_workers > 0 && self.tls_ca.is_some() {
-            bail!("--tls-ca cannot be used with --local-workers: local workers listen on loopback without TLS");
+        if self.local_workers > 0 && self.tls.any() {
+            bail!("--tls-* options cannot be used with --local-workers: local workers listen on loopback without TLS; give the workers with --workers or --hosts instead");
         }
         if self.local_workers == 0 && self.local_worker_threads.is_some() {
             bail!("--local-worker-threads needs --local-workers N");
@@ -214,6 +208,23 @@ impl ClusterArgs {
     }
 }
 
+/// With TLS options, every worker `--launch` starts must serve TLS: its hosts
+/// entry needs `tls_cert` and `tls_key` (paths on that host).
+fn check_launch_tls(launch: &[LaunchSpec], tls: &ClientTls) -> Result<()> {
+    if !tls.any() {
+        return Ok(());
+    }
+    for l in launch {
+        if l.tls.is_none() {
+            bail!(
+                "--tls-* options are given but the worker launched on {} would serve without TLS; add tls_cert and tls_key (paths on that host) to its [[worker]] entry in the hosts file",
+                l.ssh
+            );
+        }
+    }
+    Ok(())
+}
+
 /// `--launch`: the workers started over ssh (None when there are no hosts to
 /// launch on); the hosts skipped are named on stderr.
 fn launch_over_ssh(launch: &[LaunchSpec]) -> Result<Option<SshWorkers>> {
@@ -238,6 +249,8 @@ pub struct StatusArgs {
     /// Shared token of the workers.
     #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
+    #[command(flatten)]
+    pub tls: TlsArgs,
     /// Seconds to wait for each worker (0.1 to 600).
     #[arg(long, default_value_t = 3.0, value_name = "SECONDS",
           value_parser = |s: &str| parse_seconds(s, STATUS_TIMEOUT.0, STATUS_TIMEOUT.1))]
@@ -254,8 +267,11 @@ pub fn run_status(a: &StatusArgs) -> Result<()> {
     if workers.is_empty() {
         bail!("no workers: give --hosts FILE or --workers HOST:PORT,...");
     }
+    let tls = a.tls.load()?;
+    let addresses: Vec<&str> = workers.iter().map(|w| w.address.as_str()).collect();
+    tls.check(&addresses)?;
     let timeout = seconds("--timeout", a.timeout, STATUS_TIMEOUT.0, STATUS_TIMEOUT.1)?;
-    let rows = status::query(&workers, timeout)?;
+    let rows = status::query(&workers, &tls, timeout)?;
     print!("{}", status::format_table(&rows));
     if rows.iter().all(|(_, r)| r.is_err()) {
         bail!("no worker answered");

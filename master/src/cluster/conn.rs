@@ -11,15 +11,15 @@ use std::time::{Duration, Instant};
 
 use texsyn_engine::Hit;
 use texsyn_proto::auth::BearerAuth;
+use texsyn_proto::tls::{error_chain, parse_address, ClientTls};
 use texsyn_proto::v1 as pb;
 use texsyn_proto::wire::{best_hits, bounds_from_proto, prune_from_proto};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::codegen::InterceptedService;
-use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint};
+use tonic::transport::Channel;
 use tonic::{Request, Status, Streaming};
 
-use anyhow::{ensure, Context};
 use texsyn_engine::{check_part, CalibrationSize, PruneStats};
 
 use super::error::{ClusterError, ClusterResult};
@@ -54,33 +54,11 @@ impl WorkerSpec {
 }
 
 /// Splits `host:port` (also `[v6]:port`, optionally prefixed with `http://` or
-/// `https://`) into host and port, checking both.
+/// `https://`) into host and port, checking both; other schemes and paths are
+/// refused ([`texsyn_proto::tls::parse_address`]).
 pub fn split_address(address: &str) -> anyhow::Result<(String, u16)> {
-    let a = address.trim();
-    let a = a
-        .strip_prefix("http://")
-        .or_else(|| a.strip_prefix("https://"))
-        .unwrap_or(a)
-        .trim_end_matches('/');
-    let (host, port) = a.rsplit_once(':').with_context(|| {
-        format!("worker address '{address}' is not host:port, e.g. 192.168.1.20:7878")
-    })?;
-    let port: u16 = port
-        .parse()
-        .with_context(|| format!("port '{port}' of worker address '{address}' is not 1..=65535"))?;
-    ensure!(
-        port != 0,
-        "worker address '{address}' has port 0; give the port the worker printed"
-    );
-    let bare = host.trim_start_matches('[').trim_end_matches(']');
-    ensure!(
-        !bare.is_empty()
-            && bare
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | ':' | '_')),
-        "host '{host}' of worker address '{address}' is not a host name or IP address"
-    );
-    Ok((host.to_string(), port))
+    let a = parse_address(address)?;
+    Ok((a.host, a.port))
 }
 
 /// Largest answer the master decodes (answers are 24 bytes per query at most).
@@ -89,6 +67,19 @@ const MAX_DECODE: usize = 256 << 20;
 /// A status as one line: `Unauthenticated: wrong token ...`.
 pub(crate) fn status_text(s: &Status) -> String {
     format!("{:?}: {}", s.code(), s.message())
+}
+
+/// A status of a connection's first call, with its causes and what to do
+/// when it is a TLS mismatch.
+pub(crate) fn first_call_text(s: &Status, address: &str, tls: &ClientTls) -> String {
+    let mut text = status_text(s);
+    if let Some(src) = std::error::Error::source(s) {
+        let chain = error_chain(src);
+        if !text.contains(&chain) {
+            text = format!("{text}: {chain}");
+        }
+    }
+    tls.explain(address, text)
 }
 
 /// Runs `f` with a deadline of `d`: the result, or why there is none.
@@ -116,48 +107,26 @@ fn request<T>(msg: T, d: Duration) -> Request<T> {
     r
 }
 
-/// Opens a channel to the worker (TLS when a CA is given) with the token interceptor.
+/// Opens a channel to the worker with the token interceptor: TLS as the
+/// address's scheme and `tls` say ([`ClientTls::use_tls`]).
 pub(crate) async fn connect(
     spec: &WorkerSpec,
-    tls_ca: Option<&[u8]>,
+    tls: &ClientTls,
     timeout: Duration,
 ) -> ClusterResult<Client> {
-    let (host, port) =
-        split_address(&spec.address).map_err(|e| ClusterError::Address(format!("{e:#}")))?;
-    let scheme = if tls_ca.is_some() { "https" } else { "http" };
-    let mut endpoint = Endpoint::from_shared(format!("{scheme}://{host}:{port}"))
-        .map_err(|e| ClusterError::InvalidAddress(e.to_string()))?
-        .connect_timeout(timeout)
+    let endpoint = tls
+        .endpoint(&spec.address, timeout)
+        .map_err(|e| ClusterError::Address(format!("{e:#}")))?
         .tcp_nodelay(true)
         .http2_keep_alive_interval(Duration::from_secs(10))
         .keep_alive_timeout(Duration::from_secs(10))
         .keep_alive_while_idle(true);
-    if let Some(ca) = tls_ca {
-        let domain = host
-            .trim_start_matches('[')
-            .trim_end_matches(']')
-            .to_string();
-        endpoint = endpoint
-            .tls_config(
-                ClientTlsConfig::new()
-                    .ca_certificate(Certificate::from_pem(ca))
-                    .domain_name(domain),
-            )
-            .map_err(|e| ClusterError::Tls(e.to_string()))?;
-    }
     let channel = match tokio::time::timeout(timeout, endpoint.connect()).await {
         Ok(Ok(c)) => c,
         Ok(Err(e)) => {
-            let mut msg = e.to_string();
-            let mut src = std::error::Error::source(&e);
-            while let Some(s) = src {
-                let text = s.to_string();
-                if !msg.contains(&text) {
-                    msg = format!("{msg}: {text}");
-                }
-                src = s.source();
-            }
-            return Err(ClusterError::Connect(msg));
+            return Err(ClusterError::Connect(
+                tls.explain(&spec.address, error_chain(&e)),
+            ))
         }
         Err(_) => return Err(ClusterError::ConnectTimeout(timeout.as_millis())),
     };
@@ -167,6 +136,38 @@ pub(crate) async fn connect(
         pb::worker_client::WorkerClient::with_interceptor(channel, auth)
             .max_decoding_message_size(MAX_DECODE),
     )
+}
+
+/// The Info call on a fresh connection, within `d`; TLS mismatches (which
+/// show only at the first call) are explained.
+pub(crate) async fn first_info(
+    client: &mut Client,
+    spec: &WorkerSpec,
+    tls: &ClientTls,
+    protocol: u32,
+    d: Duration,
+) -> ClusterResult<pb::InfoReply> {
+    match tokio::time::timeout(
+        d,
+        client.info(request(
+            pb::InfoRequest {
+                protocol_version: protocol,
+            },
+            d,
+        )),
+    )
+    .await
+    {
+        Ok(Ok(r)) => Ok(r.into_inner()),
+        Ok(Err(s)) => Err(ClusterError::Call {
+            call: "Info",
+            status: first_call_text(&s, &spec.address, tls),
+        }),
+        Err(_) => Err(ClusterError::CallDeadline {
+            call: "Info",
+            ms: d.as_millis(),
+        }),
+    }
 }
 
 /// What the master keeps from a worker's Info and Calibrate.
@@ -245,24 +246,13 @@ pub(crate) struct Handshake {
 /// Connect and Info (version handshake).
 pub(crate) async fn handshake(
     spec: WorkerSpec,
-    tls_ca: Option<Vec<u8>>,
+    tls: ClientTls,
     protocol: u32,
     connect_timeout: Duration,
     call_timeout: Duration,
 ) -> ClusterResult<Handshake> {
-    let mut client = connect(&spec, tls_ca.as_deref(), connect_timeout).await?;
-    let reply = within(
-        call_timeout,
-        "Info",
-        client.info(request(
-            pb::InfoRequest {
-                protocol_version: protocol,
-            },
-            call_timeout,
-        )),
-    )
-    .await?
-    .into_inner();
+    let mut client = connect(&spec, &tls, connect_timeout).await?;
+    let reply = first_info(&mut client, &spec, &tls, protocol, call_timeout).await?;
     let info = check_protocol(&spec.address, protocol, &reply)?;
     Ok(Handshake { client, info })
 }
@@ -484,6 +474,9 @@ mod tests {
             ":80",
             "a b:80",
             "h/x:1",
+            "grpc://h:1",
+            "ftp://h:21",
+            "https://h:1/api",
         ] {
             assert!(split_address(bad).is_err(), "{bad}");
         }

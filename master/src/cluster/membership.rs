@@ -152,7 +152,7 @@ impl ClusterSearch {
                 let span = tracing::info_span!("worker", address = %spec.address);
                 conn::handshake(
                     spec,
-                    o.tls_ca.clone(),
+                    o.tls.clone(),
                     o.protocol_version,
                     o.connect_timeout,
                     o.call_timeout,

@@ -42,6 +42,7 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 use rand::Rng;
 use texsyn_engine::{Engine, Hit, Layout, OwnedLevel, PruneStats, QueryBatch, VectorSpace};
+use texsyn_proto::tls::ClientTls;
 use texsyn_proto::v1 as pb;
 use texsyn_proto::wire::load_level_parts;
 use texsyn_proto::PROTOCOL_VERSION;
@@ -63,9 +64,9 @@ pub struct ClusterOptions {
     pub workers: Vec<WorkerSpec>,
     /// Hosts of a `--launch` that were skipped, with the reason (for the report).
     pub skipped_hosts: Vec<(String, String)>,
-    /// PEM CA certificate that signed the workers' TLS certificates; TLS is on
-    /// when this is set (the host part of each address is the server name).
-    pub tls_ca: Option<Vec<u8>>,
+    /// Client TLS: `https://` addresses always use TLS, `host:port` ones when
+    /// any option is set, `http://` ones never (an error when options are set).
+    pub tls: ClientTls,
     /// Fail instead of finishing locally when no worker is left.
     pub require_cluster: bool,
     /// The master searches a share of each level itself, sized by its own calibration.
@@ -94,7 +95,7 @@ impl std::fmt::Debug for ClusterOptions {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ClusterOptions")
             .field("workers", &self.workers)
-            .field("tls", &self.tls_ca.is_some())
+            .field("tls", &self.tls)
             .field("require_cluster", &self.require_cluster)
             .field("master_share", &self.master_share)
             .field("deadline_factor", &self.deadline_factor)
@@ -116,7 +117,7 @@ impl Default for ClusterOptions {
         Self {
             workers: Vec::new(),
             skipped_hosts: Vec::new(),
-            tls_ca: None,
+            tls: ClientTls::default(),
             require_cluster: false,
             master_share: false,
             deadline_factor: 8.0,
@@ -221,9 +222,8 @@ impl ClusterSearch {
         if !(opts.deadline_factor.is_finite() && opts.deadline_factor >= 1.0) {
             bail!(ClusterError::DeadlineFactor(opts.deadline_factor));
         }
-        for w in &opts.workers {
-            split_address(&w.address)?;
-        }
+        let addresses: Vec<&str> = opts.workers.iter().map(|w| w.address.as_str()).collect();
+        opts.tls.check(&addresses)?;
         let rt = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
             .thread_name("texsyn-cluster")

@@ -7,14 +7,16 @@ use anyhow::{Context, Result};
 use texsyn_proto::v1 as pb;
 use texsyn_proto::PROTOCOL_VERSION;
 
-use super::conn::{connect, within, WorkerSpec};
+use texsyn_proto::tls::ClientTls;
+
+use super::conn::{connect, first_info, WorkerSpec};
 use super::error::ClusterResult;
 
 /// One row of the table: the worker's Info, or why it did not answer.
 pub type StatusRow = (String, ClusterResult<pb::InfoReply>);
 
-/// Asks every worker for its Info.
-pub fn query(workers: &[WorkerSpec], timeout: Duration) -> Result<Vec<StatusRow>> {
+/// Asks every worker for its Info (TLS as the addresses and `tls` say).
+pub fn query(workers: &[WorkerSpec], tls: &ClientTls, timeout: Duration) -> Result<Vec<StatusRow>> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -23,14 +25,8 @@ pub fn query(workers: &[WorkerSpec], timeout: Duration) -> Result<Vec<StatusRow>
         let mut rows = Vec::new();
         for w in workers {
             let r = async {
-                let mut client = connect(w, None, timeout).await?;
-                let mut req = tonic::Request::new(pb::InfoRequest {
-                    protocol_version: PROTOCOL_VERSION,
-                });
-                req.set_timeout(timeout);
-                Ok(within(timeout, "Info", client.info(req))
-                    .await?
-                    .into_inner())
+                let mut client = connect(w, tls, timeout).await?;
+                first_info(&mut client, w, tls, PROTOCOL_VERSION, timeout).await
             }
             .await;
             rows.push((w.address.clone(), r));

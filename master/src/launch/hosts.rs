@@ -16,6 +16,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, ensure, Context, Result};
 use texsyn_proto::auth::read_token_file;
 
+use texsyn_proto::tls::{parse_address, Scheme};
+
 use crate::cluster::{split_address, WorkerSpec};
 
 #[derive(serde::Deserialize)]
@@ -43,6 +45,12 @@ struct HostEntry {
     /// Extra options for the ssh client, e.g. `["-F", "/path/ssh_config"]`.
     #[serde(default)]
     ssh_options: Vec<String>,
+    /// TLS certificate chain of the launched worker (a path on that host).
+    tls_cert: Option<String>,
+    /// TLS private key of the launched worker (a path on that host).
+    tls_key: Option<String>,
+    /// CA whose client certificates the launched worker requires (mutual TLS; a path on that host).
+    tls_client_ca: Option<String>,
 }
 
 /// Largest hosts file read (it is a short list).
@@ -61,6 +69,17 @@ pub struct LaunchSpec {
     pub binary: String,
     pub threads: Option<usize>,
     pub ssh_options: Vec<String>,
+    /// The launched worker serves TLS with these files (paths on that host).
+    pub tls: Option<LaunchTls>,
+}
+
+/// TLS files of a launched worker, as paths on its host.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LaunchTls {
+    pub cert: String,
+    pub key: String,
+    /// Client CA: the worker requires client certificates signed by it.
+    pub client_ca: Option<String>,
 }
 
 /// Reads a hosts file. A worker's `token_file` (relative paths are relative to
@@ -123,23 +142,54 @@ fn launch_spec(e: &HostEntry, ssh: &str, path: &Path) -> Result<LaunchSpec> {
         "ssh target '{ssh}' in the hosts file {} is not user@host",
         path.display()
     );
-    let (host, port) = match split_address(&e.address) {
-        Ok((h, p)) => (h, p),
+    let (host, port, scheme) = match parse_address(&e.address) {
+        Ok(a) => (a.host, a.port, a.scheme),
         Err(_) => {
-            let h = e.address.trim().to_string();
-            split_address(&format!("{h}:1")).with_context(|| {
+            let h = e.address.trim().trim_end_matches('/').to_string();
+            let a = parse_address(&format!("{h}:1")).with_context(|| {
                 format!(
                     "address '{}' in the hosts file {}",
                     e.address,
                     path.display()
                 )
             })?;
-            (h, 0)
+            (a.host, 0, a.scheme)
         }
     };
     if let Some(t) = e.threads {
         ensure!(t > 0, "threads = 0 for {} in {}", e.address, path.display());
     }
+    let tls = match (&e.tls_cert, &e.tls_key) {
+        (Some(cert), Some(key)) => Some(LaunchTls {
+            cert: cert.clone(),
+            key: key.clone(),
+            client_ca: e.tls_client_ca.clone(),
+        }),
+        (None, None) => None,
+        _ => bail!(
+            "the [[worker]] entry {} in the hosts file {} has only one of tls_cert and tls_key; give both (paths on that host)",
+            e.address,
+            path.display()
+        ),
+    };
+    ensure!(
+        tls.is_some() || e.tls_client_ca.is_none(),
+        "the [[worker]] entry {} in the hosts file {} has tls_client_ca without tls_cert and tls_key; mutual TLS needs both",
+        e.address,
+        path.display()
+    );
+    ensure!(
+        !(tls.is_some() && scheme == Some(Scheme::Plain)),
+        "the [[worker]] entry {} in the hosts file {} is http:// but has tls_cert; write https:// or drop tls_cert and tls_key",
+        e.address,
+        path.display()
+    );
+    ensure!(
+        tls.is_some() || scheme != Some(Scheme::Tls),
+        "the [[worker]] entry {} in the hosts file {} is https:// but has no tls_cert and tls_key for the launched worker; add them (paths on that host)",
+        e.address,
+        path.display()
+    );
     Ok(LaunchSpec {
         host,
         port: e.port.unwrap_or(port),
@@ -147,6 +197,7 @@ fn launch_spec(e: &HostEntry, ssh: &str, path: &Path) -> Result<LaunchSpec> {
         binary: e.binary.clone().unwrap_or_else(|| "texsyn-worker".into()),
         threads: e.threads,
         ssh_options: e.ssh_options.clone(),
+        tls,
     })
 }
 
@@ -158,6 +209,12 @@ fn entry_spec(
     default_token: Option<&str>,
 ) -> Result<WorkerSpec> {
     split_address(&e.address).with_context(|| format!("in the hosts file {}", path.display()))?;
+    ensure!(
+        e.tls_cert.is_none() && e.tls_key.is_none() && e.tls_client_ca.is_none(),
+        "the [[worker]] entry {} in the hosts file {} has tls_cert, tls_key or tls_client_ca, which only a launched worker (ssh = ..., --launch) uses; for a running worker give --tls-ca and an https:// address",
+        e.address,
+        path.display()
+    );
     let token = match &e.token_file {
         Some(f) => Some(read_token_file(&base.join(f))?),
         None => default_token.map(str::to_string),
@@ -272,5 +329,39 @@ mod tests {
         )
         .unwrap();
         assert!(read_hosts_file_launch(&hosts, None, true).is_err());
+    }
+
+    #[test]
+    fn launch_entries_with_tls() {
+        let dir = tempfile::tempdir().unwrap();
+        let hosts = dir.path().join("hosts.toml");
+        let entry = |extra: &str| {
+            format!(
+                "[[worker]]\naddress = \"https://10.0.0.2:7000\"\nssh = \"me@10.0.0.2\"\n{extra}"
+            )
+        };
+        std::fs::write(
+            &hosts,
+            entry("tls_cert = \"/etc/t/c.pem\"\ntls_key = \"/etc/t/k.pem\"\ntls_client_ca = \"/etc/t/ca.pem\"\n"),
+        )
+        .unwrap();
+        let (_, launch) = read_hosts_file_launch(&hosts, None, true).unwrap();
+        assert_eq!(
+            (launch[0].host.as_str(), launch[0].port),
+            ("10.0.0.2", 7000)
+        );
+        let tls = launch[0].tls.as_ref().unwrap();
+        assert_eq!(tls.cert, "/etc/t/c.pem");
+        assert_eq!(tls.client_ca.as_deref(), Some("/etc/t/ca.pem"));
+        for bad in [
+            entry(""),
+            entry("tls_cert = \"/c\"\n"),
+            entry("tls_client_ca = \"/ca\"\n"),
+            entry("tls_cert = \"/c\"\ntls_key = \"/k\"\n").replace("https://", "http://"),
+            "[[worker]]\naddress = \"a:1\"\ntls_cert = \"/c\"\ntls_key = \"/k\"\n".into(),
+        ] {
+            std::fs::write(&hosts, &bad).unwrap();
+            assert!(read_hosts_file_launch(&hosts, None, true).is_err(), "{bad}");
+        }
     }
 }

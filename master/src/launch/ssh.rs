@@ -235,15 +235,32 @@ impl Drop for SshWorker {
     }
 }
 
-/// Starts the worker of a checked host.
-fn launch_one(spec: &LaunchSpec, report: HostReport, token: &str, log: &Path) -> Result<SshWorker> {
-    let threads = spec.threads.unwrap_or(report.cores.max(1));
+/// The command that starts the worker on the remote host: its listen address,
+/// threads, the token from stdin and, with TLS, its certificate files.
+pub fn remote_command(spec: &LaunchSpec, threads: usize) -> String {
     let listen = format!("{}:{}", spec.host, spec.port);
-    let remote = format!(
+    let mut remote = format!(
         "exec {} serve --listen {} --threads {threads} --token-stdin --exit-on-stdin-close",
         shell_quote(&spec.binary),
         shell_quote(&listen)
     );
+    if let Some(tls) = &spec.tls {
+        remote += &format!(
+            " --tls-cert {} --tls-key {}",
+            shell_quote(&tls.cert),
+            shell_quote(&tls.key)
+        );
+        if let Some(ca) = &tls.client_ca {
+            remote += &format!(" --tls-client-ca {}", shell_quote(ca));
+        }
+    }
+    remote
+}
+
+/// Starts the worker of a checked host.
+fn launch_one(spec: &LaunchSpec, report: HostReport, token: &str, log: &Path) -> Result<SshWorker> {
+    let threads = spec.threads.unwrap_or(report.cores.max(1));
+    let remote = remote_command(spec, threads);
     let log_file = std::fs::File::create(log)
         .with_context(|| format!("cannot create the log {}", log.display()))?;
     let mut cmd = ssh_command(spec, &remote);
@@ -289,7 +306,8 @@ fn launch_one(spec: &LaunchSpec, report: HostReport, token: &str, log: &Path) ->
             spec.ssh
         );
     };
-    worker.address = format!("{}:{}", spec.host, bound.port());
+    let scheme = if spec.tls.is_some() { "https://" } else { "" };
+    worker.address = format!("{scheme}{}:{}", spec.host, bound.port());
     Ok(worker)
 }
 
@@ -419,6 +437,37 @@ mod tests {
         assert!(check("99999999999", "0.5", "1024").is_err());
         assert!(check("4", "nan", "1024").is_err());
         assert!(check("4", "-1", "1024").is_err());
+    }
+
+    #[test]
+    fn remote_command_passes_the_tls_files() {
+        let mut spec = LaunchSpec {
+            host: "10.0.0.2".into(),
+            port: 7000,
+            ssh: "me@10.0.0.2".into(),
+            binary: "texsyn-worker".into(),
+            threads: None,
+            ssh_options: Vec::new(),
+            tls: None,
+        };
+        let plain = remote_command(&spec, 4);
+        assert!(
+            plain.contains("--listen 10.0.0.2:7000 --threads 4"),
+            "{plain}"
+        );
+        assert!(!plain.contains("--tls"), "{plain}");
+        spec.tls = Some(super::super::hosts::LaunchTls {
+            cert: "/etc/t/c.pem".into(),
+            key: "/etc/t/my key.pem".into(),
+            client_ca: Some("/etc/t/ca.pem".into()),
+        });
+        let tls = remote_command(&spec, 4);
+        assert!(
+            tls.ends_with(
+                " --tls-cert /etc/t/c.pem --tls-key '/etc/t/my key.pem' --tls-client-ca /etc/t/ca.pem"
+            ),
+            "{tls}"
+        );
     }
 
     #[test]

@@ -25,11 +25,14 @@ const MIN_MAX_MEMORY: u64 = 1 << 20;
 const MAX_THREADS: usize = 4096;
 const MAX_CONNECTIONS: usize = 1 << 16;
 
-/// A PEM certificate chain and private key for TLS.
+/// A PEM certificate chain and private key for TLS, and the CA of the client
+/// certificates to require (mutual TLS).
 #[derive(Clone)]
 pub struct TlsIdentity {
     pub cert_pem: Vec<u8>,
     pub key_pem: Vec<u8>,
+    /// PEM CA: when set, every client must present a certificate it signed.
+    pub client_ca_pem: Option<Vec<u8>>,
 }
 
 impl TlsIdentity {
@@ -39,7 +42,19 @@ impl TlsIdentity {
             .with_context(|| format!("cannot read the TLS certificate {}", cert.display()))?;
         let key_pem = std::fs::read(key)
             .with_context(|| format!("cannot read the TLS key {}", key.display()))?;
-        Ok(Self { cert_pem, key_pem })
+        Ok(Self {
+            cert_pem,
+            key_pem,
+            client_ca_pem: None,
+        })
+    }
+
+    /// Requires client certificates signed by the CA in `ca` (`--tls-client-ca`).
+    pub fn with_client_ca(self, ca: &Path) -> anyhow::Result<Self> {
+        Ok(Self {
+            client_ca_pem: Some(texsyn_proto::tls::read_cert_pem(ca, "--tls-client-ca")?),
+            ..self
+        })
     }
 }
 
@@ -48,6 +63,7 @@ impl std::fmt::Debug for TlsIdentity {
         f.debug_struct("TlsIdentity")
             .field("cert_pem", &format_args!("{} bytes", self.cert_pem.len()))
             .field("key_pem", &"<redacted>")
+            .field("client_ca", &self.client_ca_pem.is_some())
             .finish()
     }
 }

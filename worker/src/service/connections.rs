@@ -195,8 +195,11 @@ impl Connected for Guarded {
 /// switch that closes it.
 #[derive(Default)]
 struct Silent {
-    waiting: Mutex<(u64, VecDeque<(u64, oneshot::Sender<()>)>)>,
+    waiting: Mutex<Waiting>,
 }
+
+/// The next id, and the waiting connections' ids and close switches.
+type Waiting = (u64, VecDeque<(u64, oneshot::Sender<()>)>);
 
 impl Silent {
     /// Registers a new connection (pushing out the oldest when

@@ -29,7 +29,7 @@ use texsyn_proto::v1::worker_server::WorkerServer;
 use tokio::net::TcpListener;
 use tonic::codegen::http;
 use tonic::service::InterceptorLayer;
-use tonic::transport::{Identity, Server, ServerTlsConfig};
+use tonic::transport::{Certificate, Identity, Server, ServerTlsConfig};
 
 pub use budget::default_max_memory;
 pub use config::{
@@ -131,13 +131,15 @@ pub async fn serve(
         .http2_keepalive_timeout(Some(HTTP2_KEEPALIVE_TIMEOUT));
     if let Some(tls) = &config.tls {
         let identity = Identity::from_pem(&tls.cert_pem, &tls.key_pem);
+        let mut tls_config = ServerTlsConfig::new()
+            .identity(identity)
+            .timeout(TLS_HANDSHAKE_TIMEOUT);
+        if let Some(ca) = &tls.client_ca_pem {
+            tls_config = tls_config.client_ca_root(Certificate::from_pem(ca));
+        }
         builder = builder
-            .tls_config(
-                ServerTlsConfig::new()
-                    .identity(identity)
-                    .timeout(TLS_HANDSHAKE_TIMEOUT),
-            )
-            .context("invalid TLS certificate or key")?;
+            .tls_config(tls_config)
+            .context("invalid TLS certificate, key or client CA")?;
     }
     let registry = Arc::new(connections::Registry::default());
     let layers = tower::ServiceBuilder::new()
@@ -158,6 +160,7 @@ pub async fn serve(
         threads = config.threads,
         kernel = shared.engine.kernel().name(),
         tls = config.tls.is_some(),
+        mutual_tls = config.tls.as_ref().is_some_and(|t| t.client_ca_pem.is_some()),
         token = config.token.is_some(),
         max_message = config.max_message,
         max_memory = config.max_memory,
