@@ -317,6 +317,20 @@ pub struct VectorSpace {
     key_plane: OnceLock<Option<KeyPlane>>,
 }
 
+/// The value of `cell`, built by `build` if it is empty. Unlike
+/// `OnceLock::get_or_init`, nobody waits for somebody else's build: the keys
+/// are built with rayon, and a rayon thread that waited for a build inside
+/// another search could be the thread the build itself needs (a deadlock
+/// under concurrent searches). Threads that find the cell empty at the same
+/// time each build; the first value stored wins, and all are equal.
+fn once<T>(cell: &OnceLock<T>, build: impl FnOnce() -> T) -> &T {
+    if let Some(v) = cell.get() {
+        return v;
+    }
+    let _ = cell.set(build());
+    cell.get().expect("set above or by another thread")
+}
+
 impl VectorSpace {
     /// Builds the dense vectors of global indices `range` of the level
     /// (ARCHITECTURE §3.3): a worker builds only the part it owns.
@@ -542,9 +556,10 @@ impl VectorSpace {
         let Data::Dense(d) = &self.data else {
             return None;
         };
-        self.keys
-            .get_or_init(|| KeyIndex::build(&self.layout, d.as_slice(), self.len))
-            .as_ref()
+        once(&self.keys, || {
+            KeyIndex::build(&self.layout, d.as_slice(), self.len)
+        })
+        .as_ref()
     }
 
     /// The keys of a plane-backed space, built on first use; `None` for a
@@ -554,13 +569,12 @@ impl VectorSpace {
         let Data::Planes(src) = &self.data else {
             return None;
         };
-        self.key_plane
-            .get_or_init(|| {
-                let p = src.parent.as_ref()?;
-                let pixels = &p.pixels[..p.pixels.len() - PIECE];
-                KeyPlane::build(pixels, p.width, p.row0, src.geometry.m)
-            })
-            .as_ref()
+        once(&self.key_plane, || {
+            let p = src.parent.as_ref()?;
+            let pixels = &p.pixels[..p.pixels.len() - PIECE];
+            KeyPlane::build(pixels, p.width, p.row0, src.geometry.m)
+        })
+        .as_ref()
     }
 
     /// Whether a query with this mask can be searched by key windows here

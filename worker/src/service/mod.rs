@@ -46,9 +46,12 @@ use texsyn_proto::auth::TokenCheck;
 /// How long open connections (a master's long-lived search streams) get to
 /// finish after the shutdown signal before the server stops anyway.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
-/// Most concurrent HTTP/2 streams (calls) on one connection; a client queues
-/// the rest.
-pub const MAX_STREAMS_PER_CONNECTION: u32 = 64;
+/// Most concurrent HTTP/2 streams (calls) on one connection. High enough
+/// that a client never queues streams in practice: HTTP/2 clients that queue
+/// beyond the server's limit can stall (hyperium/hyper#3559), and a stream
+/// costs little here, since every call's memory is reserved from the budget
+/// and the connection's flow-control window bounds what waits unread.
+pub const MAX_STREAMS_PER_CONNECTION: u32 = 1024;
 /// HTTP/2 pings on idle connections, and how long an answer may take before
 /// the connection is dropped as dead.
 const HTTP2_KEEPALIVE: Duration = Duration::from_secs(10);
