@@ -945,6 +945,9 @@ async fn closed_after(s: &mut tokio::net::TcpStream) -> Option<Duration> {
     }
 }
 
+/// The HTTP/2 client preface and an empty SETTINGS frame.
+const PREFACE: &[u8] = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\x00\x00\x00\x04\x00\x00\x00\x00\x00";
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn silent_unauthenticated_and_surplus_connections_are_closed() {
     use tokio::io::AsyncWriteExt;
@@ -973,9 +976,7 @@ async fn silent_unauthenticated_and_surplus_connections_are_closed() {
     // An HTTP/2 client that never makes an authenticated call: closed after
     // the authentication timeout, even though it answers pings.
     let mut h2 = TcpStream::connect(w.addr).await.unwrap();
-    h2.write_all(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\x00\x00\x00\x04\x00\x00\x00\x00\x00")
-        .await
-        .unwrap();
+    h2.write_all(PREFACE).await.unwrap();
     let took = closed_after(&mut h2)
         .await
         .expect("an idle HTTP/2 connection is closed");
@@ -1003,13 +1004,18 @@ async fn silent_unauthenticated_and_surplus_connections_are_closed() {
     tokio::time::sleep(Duration::from_millis(1200)).await;
     good.info(info).await.unwrap();
 
-    // Over the connection limit: the surplus is closed at once, and a flood
-    // of silent sockets cannot keep a new client out for long.
+    // Over the connection limit: with every slot held by connections that
+    // speak (`good` and 7 more), one more speaking connection is closed at
+    // once, before the first-byte timeout.
     let mut held = Vec::new();
     for _ in 0..7 {
-        held.push(TcpStream::connect(w.addr).await.unwrap());
+        let mut s = TcpStream::connect(w.addr).await.unwrap();
+        s.write_all(PREFACE).await.unwrap();
+        held.push(s);
     }
+    tokio::time::sleep(Duration::from_millis(50)).await;
     let mut surplus = TcpStream::connect(w.addr).await.unwrap();
+    surplus.write_all(PREFACE).await.unwrap();
     let took = closed_after(&mut surplus)
         .await
         .expect("the surplus is closed");
