@@ -5,6 +5,7 @@
 //! speak through this crate only.
 
 pub mod auth;
+pub mod cli;
 pub mod tls;
 pub mod wire;
 

@@ -130,54 +130,13 @@ const HEALTH_TIMEOUT: (f64, f64) = (0.1, 600.0);
 /// Largest `--idle-timeout`, in seconds (30 days).
 const MAX_IDLE_TIMEOUT: u64 = 30 * 24 * 3600;
 
-/// Parses a number of seconds in `min..=max` (finite): the one parser of the
-/// worker's duration flags, used as a clap value parser.
-pub fn parse_seconds(s: &str, min: f64, max: f64) -> Result<f64, String> {
-    let v: f64 = s.trim().parse().map_err(|_| {
-        format!("'{s}' is not a number of seconds; give one between {min} and {max}")
-    })?;
-    seconds(v, min, max)
-        .map(|_| v)
-        .map_err(|_| format!("{s} seconds is out of range; give a number between {min} and {max}"))
-}
-
-/// `v` seconds as a [`Duration`] when finite and in `min..=max`.
-fn seconds(v: f64, min: f64, max: f64) -> Result<Duration, String> {
-    if v.is_finite() && (min..=max).contains(&v) {
-        Duration::try_from_secs_f64(v).map_err(|e| format!("{v} seconds: {e}"))
-    } else {
-        Err(format!(
-            "{v} seconds is out of range; give a number between {min} and {max}"
-        ))
-    }
-}
+pub use texsyn_proto::cli::parse_seconds;
 
 /// Parses the command line. A usage error (unknown flag, bad value) is
 /// printed as one line `texsyn-worker: error: ...` and exits with code 1;
 /// help and version go out as clap prints them.
 pub fn parse_args() -> Cli {
-    use clap::error::ErrorKind;
-    Cli::try_parse().unwrap_or_else(|e| {
-        if matches!(
-            e.kind(),
-            ErrorKind::DisplayHelp
-                | ErrorKind::DisplayVersion
-                | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
-        ) {
-            e.exit()
-        }
-        let text = e.render().to_string();
-        let parts: Vec<&str> = text
-            .lines()
-            .map(str::trim)
-            .filter(|l| {
-                !l.is_empty() && !l.starts_with("Usage:") && !l.starts_with("For more information")
-            })
-            .map(|l| l.strip_prefix("error: ").unwrap_or(l))
-            .collect();
-        eprintln!("texsyn-worker: error: {} (see --help)", parts.join(" "));
-        std::process::exit(1)
-    })
+    texsyn_proto::cli::parse_or_exit("texsyn-worker")
 }
 
 /// Parses `123`, `64K`, `64M`, `8G` (binary units).
@@ -266,8 +225,14 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             &a.address,
             a.token_file.as_deref(),
             &a.tls.load()?,
-            seconds(a.timeout, HEALTH_TIMEOUT.0, HEALTH_TIMEOUT.1)
-                .map_err(|e| anyhow::anyhow!("--timeout: {e}"))?,
+            texsyn_proto::cli::check_seconds(
+                a.timeout,
+                &a.timeout.to_string(),
+                HEALTH_TIMEOUT.0,
+                HEALTH_TIMEOUT.1,
+            )
+            .map(Duration::from_secs_f64)
+            .map_err(|e| anyhow::anyhow!("--timeout: {e}"))?,
         ),
     }
 }

@@ -205,37 +205,7 @@ pub enum MethodArg {
 /// printed as one line `texsyn: error: ...` and exits with code 1; help and
 /// version go out as clap prints them.
 pub fn parse_args() -> Cli {
-    use clap::error::ErrorKind;
-    Cli::try_parse().unwrap_or_else(|e| {
-        if matches!(
-            e.kind(),
-            ErrorKind::DisplayHelp
-                | ErrorKind::DisplayVersion
-                | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
-        ) {
-            e.exit()
-        }
-        eprintln!("texsyn: error: {}", clap_one_line(&e.render().to_string()));
-        std::process::exit(1)
-    })
-}
-
-/// clap's error text as one line: its `error:` line, details and tips
-/// joined; the usage block is left out (`--help` shows it).
-fn clap_one_line(text: &str) -> String {
-    let parts: Vec<&str> = text
-        .lines()
-        .map(str::trim)
-        .filter(|l| {
-            !l.is_empty() && !l.starts_with("Usage:") && !l.starts_with("For more information")
-        })
-        .map(|l| l.strip_prefix("error: ").unwrap_or(l))
-        .collect();
-    let mut line = parts.join(" ");
-    if !line.contains("--help") {
-        line.push_str(" (see --help)");
-    }
-    line
+    texsyn_proto::cli::parse_or_exit("texsyn")
 }
 
 /// An error message as one line (line breaks of nested causes become spaces).
@@ -248,26 +218,8 @@ pub fn one_line(message: &str) -> String {
         .join(" ")
 }
 
-/// Parses a number of seconds in `min..=max` (finite): the one parser of the
-/// duration flags, used as a clap value parser, e.g.
-/// `value_parser = |s: &str| parse_seconds(s, 0.1, 600.0)`.
-pub fn parse_seconds(s: &str, min: f64, max: f64) -> Result<f64, String> {
-    let v: f64 = s.trim().parse().map_err(|_| {
-        format!("'{s}' is not a number of seconds; give one between {min} and {max}")
-    })?;
-    check_seconds(v, s, min, max)
-}
-
-/// `v` (written `text`) when finite and in `min..=max`.
-fn check_seconds(v: f64, text: &str, min: f64, max: f64) -> Result<f64, String> {
-    if v.is_finite() && (min..=max).contains(&v) {
-        Ok(v)
-    } else {
-        Err(format!(
-            "{text} seconds is out of range; give a number between {min} and {max}"
-        ))
-    }
-}
+use texsyn_proto::cli::check_seconds;
+pub use texsyn_proto::cli::parse_seconds;
 
 /// `v` seconds of the flag `flag` as a [`Duration`], checked against
 /// `min..=max` again (for callers of the library that skip the parser).
