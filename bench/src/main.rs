@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 
 mod cases;
 mod cluster;
+mod faults;
 mod kernel;
 mod large;
 mod lbg;
@@ -21,6 +22,7 @@ const EXAMPLES: &str = "Examples:
   texsyn-bench kernel --vectors 240000 --dims 192 --queries 64
   texsyn-bench large ../shared/textures/mossy_rock_color_1024.png --size 1024x1024 --unpruned
   texsyn-bench upscale ../shared/textures/mossy_rock_color_1024.png -o /tmp/rock_8192.png --factor 8
+  texsyn-bench faults --runs 50 --seed 1 --json /tmp/faults.json
   /usr/bin/time -v texsyn synth /tmp/rock_8192.png -o /tmp/out.png --size 512x512 [--local-workers 2]
 
 Textures default to the repository's assets/textures (give --textures DIR elsewhere).";
@@ -68,6 +70,16 @@ enum Command {
         after_help = "Example: texsyn-bench upscale ../shared/textures/mossy_rock_color_1024.png -o /tmp/rock_8192.png --factor 8"
     )]
     Upscale(large::UpscaleArgs),
+    /// The seeded fault campaign: cluster runs with random kills, stops,
+    /// partitions, restarts, slowed and lying workers; every output must be
+    /// bit-identical, nothing left behind.
+    #[command(
+        after_help = "Example (as root, for partitions): texsyn-bench faults --runs 50 --seed 1"
+    )]
+    Faults(faults::FaultArgs),
+    /// Spins on one core (the neighbour of a slowed worker in `faults`).
+    #[command(hide = true)]
+    Hog(faults::HogArgs),
 }
 
 /// A level's pruning figures in a few words: pairs abandoned and component
@@ -98,6 +110,8 @@ fn main() -> ExitCode {
         Command::Kernel(a) => kernel::run(a),
         Command::Large(a) => large::run(&a),
         Command::Upscale(a) => large::upscale(&a),
+        Command::Faults(a) => faults::run(&a),
+        Command::Hog(a) => faults::hog(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

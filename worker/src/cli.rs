@@ -15,7 +15,7 @@ use texsyn_engine::{Kernel, Storage};
 use texsyn_proto::auth::{read_token, read_token_file};
 use texsyn_proto::tls::TlsArgs;
 
-use crate::service::{TlsIdentity, WorkerConfig, DEFAULT_LISTEN};
+use crate::service::{TlsIdentity, WorkerConfig, WrongAnswers, DEFAULT_LISTEN};
 
 /// `texsyn-worker`'s arguments: a subcommand, or the serve flags directly.
 #[derive(Parser)]
@@ -117,6 +117,10 @@ pub struct ServeArgs {
     /// at distance 0 (the master must detect it and drop this worker).
     #[arg(long, hide = true)]
     pub fault_wrong_answers: bool,
+    /// Fault injection for the fault campaign: answer truthfully until the
+    /// process receives SIGUSR1, wrongly from then on.
+    #[arg(long, hide = true, conflicts_with = "fault_wrong_answers")]
+    pub fault_wrong_answers_on_sigusr1: bool,
     /// Read the shared token from the first line of stdin (never from the command line).
     #[arg(long, conflicts_with = "token_file")]
     pub token_stdin: bool,
@@ -196,7 +200,13 @@ impl TryFrom<ServeArgs> for WorkerConfig {
             idle_timeout: (a.idle_timeout > 0).then(|| Duration::from_secs(a.idle_timeout)),
             kernel: Kernel::from_name(&a.kernel)?,
             storage: Storage::from_name(&a.vector_store)?,
-            wrong_answers: a.fault_wrong_answers,
+            wrong_answers: if a.fault_wrong_answers {
+                WrongAnswers::Always
+            } else if a.fault_wrong_answers_on_sigusr1 {
+                WrongAnswers::AfterSigusr1
+            } else {
+                WrongAnswers::Never
+            },
             connections: crate::service::ConnectionLimits {
                 max_connections: a.max_connections,
                 ..Default::default()

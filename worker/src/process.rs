@@ -8,7 +8,7 @@ use std::io::Write;
 use anyhow::Context;
 use texsyn_proto::wire::listening_line;
 
-use crate::service::{self, WorkerConfig};
+use crate::service::{self, WorkerConfig, WrongAnswers};
 
 /// Binds `config.listen`, prints the listening line and serves until a
 /// shutdown signal (or the end of stdin with `exit_on_stdin_close`).
@@ -25,6 +25,14 @@ pub fn serve(config: WorkerConfig, exit_on_stdin_close: bool) -> anyhow::Result<
             .with_context(|| format!("cannot listen on {}", config.listen))?;
         let local = listener.local_addr()?;
         tracing::info!(%local, "bound");
+        if config.wrong_answers == WrongAnswers::AfterSigusr1 {
+            // Installs tokio's handler before anyone learns the address: a
+            // SIGUSR1 sent before the service listens for it must not kill
+            // the process (the default action).
+            drop(tokio::signal::unix::signal(
+                tokio::signal::unix::SignalKind::user_defined1(),
+            )?);
+        }
         let mut out = std::io::stdout().lock();
         writeln!(out, "{}", listening_line(local))?;
         out.flush()?;

@@ -6,7 +6,7 @@
 
 use std::ffi::OsString;
 use std::io::{Read, Seek};
-use std::net::{Ipv4Addr, SocketAddr};
+use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
@@ -170,12 +170,24 @@ pub fn spawn_worker(
     args: &[OsString],
     log: &Path,
 ) -> Result<WorkerProcess> {
+    spawn_worker_at(binary, SocketAddrV4::new(ip, 0), args, log)
+}
+
+/// [`spawn_worker`] on a given port (0: any), e.g. a worker restarted where
+/// its master expects it.
+pub fn spawn_worker_at(
+    binary: &Path,
+    listen: SocketAddrV4,
+    args: &[OsString],
+    log: &Path,
+) -> Result<WorkerProcess> {
+    let ip = listen.ip();
     let log_file = std::fs::File::create(log)
         .with_context(|| format!("cannot create the worker log {}", log.display()))?;
     let mut cmd = Command::new(binary);
     cmd.arg("serve")
         .arg("--listen")
-        .arg(format!("{ip}:0"))
+        .arg(listen.to_string())
         .args(args)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())

@@ -26,7 +26,7 @@ pub const START_TIMEOUT: Duration = Duration::from_secs(20);
 /// ends, so a master killed with SIGKILL leaves no worker (or ssh session)
 /// behind. (Start workers from a thread that outlives them: the main thread,
 /// or a test's.)
-fn end_with_parent(cmd: &mut Command) {
+pub fn end_with_parent(cmd: &mut Command) {
     #[cfg(target_os = "linux")]
     {
         use std::os::unix::process::CommandExt;

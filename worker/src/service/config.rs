@@ -68,6 +68,18 @@ impl std::fmt::Debug for TlsIdentity {
     }
 }
 
+/// Fault injection: when a worker answers searches with made-up references
+/// at distance 0, which win any merge that does not check them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WrongAnswers {
+    Never,
+    /// Every search (`--fault-wrong-answers`).
+    Always,
+    /// Every search after the process receives SIGUSR1
+    /// (`--fault-wrong-answers-on-sigusr1`): a lie at a time of the test's choosing.
+    AfterSigusr1,
+}
+
 /// Everything `texsyn-worker serve` is configured with. Build it with
 /// [`WorkerConfig::default`] and set fields; [`crate::service::serve`] calls
 /// [`WorkerConfig::validate`].
@@ -95,9 +107,9 @@ pub struct WorkerConfig {
     pub storage: Storage,
     /// Connection count and timeouts before a connection is served.
     pub connections: ConnectionLimits,
-    /// Fault injection for tests: answer every search with a made-up
-    /// in-range reference at distance 0 (`--fault-wrong-answers`).
-    pub wrong_answers: bool,
+    /// Fault injection for tests and the fault campaign: when searches are
+    /// answered with made-up references.
+    pub wrong_answers: WrongAnswers,
 }
 
 impl Default for WorkerConfig {
@@ -114,7 +126,7 @@ impl Default for WorkerConfig {
             kernel: Kernel::detect(),
             storage: Storage::Auto,
             connections: ConnectionLimits::default(),
-            wrong_answers: false,
+            wrong_answers: WrongAnswers::Never,
         }
     }
 }

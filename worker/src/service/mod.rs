@@ -33,7 +33,8 @@ use tonic::transport::{Certificate, Identity, Server, ServerTlsConfig};
 
 pub use budget::default_max_memory;
 pub use config::{
-    TlsIdentity, WorkerConfig, DEFAULT_IDLE_TIMEOUT, DEFAULT_LISTEN, DEFAULT_MAX_MESSAGE,
+    TlsIdentity, WorkerConfig, WrongAnswers, DEFAULT_IDLE_TIMEOUT, DEFAULT_LISTEN,
+    DEFAULT_MAX_MESSAGE,
 };
 pub use connections::{
     ConnectionLimits, AUTH_TIMEOUT, DEFAULT_MAX_CONNECTIONS, FIRST_BYTE_TIMEOUT,
@@ -121,6 +122,9 @@ pub async fn serve(
         .idle_timeout
         .map(|idle| tokio::spawn(state::reap_idle_jobs(shared.clone(), idle)));
 
+    let liar = (config.wrong_answers == WrongAnswers::AfterSigusr1)
+        .then(|| lie_after_sigusr1(shared.clone()))
+        .transpose()?;
     let service = WorkerService::new(shared.clone());
     let worker = WorkerServer::new(service)
         .max_decoding_message_size(config.max_message)
@@ -194,9 +198,25 @@ pub async fn serve(
             }
         }
     };
-    if let Some(r) = reaper {
-        r.abort();
+    for task in reaper.into_iter().chain(liar) {
+        task.abort();
     }
     shared.clear();
     result.context("gRPC server failed")
+}
+
+/// Fault injection: from the first SIGUSR1 on, searches are answered wrongly.
+fn lie_after_sigusr1(shared: Arc<Shared>) -> anyhow::Result<tokio::task::JoinHandle<()>> {
+    use tokio::signal::unix::{signal, SignalKind};
+    let mut usr1 = signal(SignalKind::user_defined1()).context("cannot catch SIGUSR1")?;
+    Ok(tokio::spawn(async move {
+        if usr1.recv().await.is_some() {
+            tracing::warn!(
+                "SIGUSR1: fault injection on, searches are answered wrongly from now on"
+            );
+            shared
+                .wrong_answers
+                .store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    }))
 }

@@ -11,7 +11,7 @@ use tonic::Status;
 use texsyn_engine::{Engine, OwnedLevel, VectorSpace};
 
 use super::budget::{Budget, Reservation};
-use super::config::WorkerConfig;
+use super::config::{WorkerConfig, WrongAnswers};
 
 /// Most jobs held at once; more is RESOURCE_EXHAUSTED until one ends or expires.
 pub(crate) const MAX_JOBS: usize = 64;
@@ -80,8 +80,9 @@ pub(crate) struct Shared {
     /// How assigned ranges hold their vectors.
     pub storage: texsyn_engine::Storage,
     pub max_message: usize,
-    /// Fault injection: answers are made up (see [`WorkerConfig::wrong_answers`]).
-    pub wrong_answers: bool,
+    /// Fault injection: answers are made up while this is true (see
+    /// [`WorkerConfig::wrong_answers`]).
+    pub wrong_answers: std::sync::atomic::AtomicBool,
     /// Turns true when the server shuts down; search streams end on it.
     pub stop: tokio::sync::watch::Receiver<bool>,
     jobs: Mutex<HashMap<String, Job>>,
@@ -106,7 +107,7 @@ impl Shared {
             budget: Budget::new(config.max_memory),
             storage: config.storage,
             max_message: config.max_message,
-            wrong_answers: config.wrong_answers,
+            wrong_answers: (config.wrong_answers == WrongAnswers::Always).into(),
             stop,
             jobs: Mutex::new(HashMap::new()),
             calibrated: AtomicU64::new(0f64.to_bits()),
