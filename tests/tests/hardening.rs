@@ -1,15 +1,21 @@
 //! A real `texsyn-worker` process under load it was not built for, driven by
 //! a raw gRPC client (ARCHITECTURE §4.5): jobs that together ask for more than
-//! the memory budget, a thousand concurrent search streams on one connection
-//! and two thousand idle sockets. The worker answers each call with a result
-//! or a status, keeps serving, and its reservations and its peak RSS stay
-//! within the budget.
+//! the memory budget, a thousand concurrent search streams on one connection,
+//! two thousand idle sockets, and a worker inside a memory control group that
+//! would be OOM-killed if it took its default cap from the host's RAM. The
+//! worker answers each call with a result or a status, keeps serving, and its
+//! reservations and its peak RSS stay within the budget.
 
 mod harness;
 
+use std::ffi::OsString;
+use std::net::Ipv4Addr;
+use std::os::unix::fs::PermissionsExt;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use harness::{alive, Token, Worker};
+use texsyn::launch::local::{spawn_worker, WorkerProcess};
 use texsyn_proto::auth::BearerAuth;
 use texsyn_proto::v1 as pb;
 use texsyn_proto::PROTOCOL_VERSION;
@@ -237,4 +243,203 @@ fn two_thousand_idle_sockets_do_not_stop_a_worker_from_serving() {
         assert!(fds < 64, "the worker still holds {fds} descriptors");
     });
     assert!(alive(w.pid()));
+}
+
+/// A memory control group made for one test (v1 or v2), removed on drop.
+struct Cgroup {
+    dir: PathBuf,
+}
+
+impl Cgroup {
+    /// A new group limited to `limit` bytes, or why this machine cannot make one.
+    fn new(limit: u64) -> Result<Self, String> {
+        let own = std::fs::read_to_string("/proc/self/cgroup")
+            .map_err(|e| format!("cannot read /proc/self/cgroup: {e}"))?;
+        let name = format!("texsyn-test-{}", std::process::id());
+        let v1 = own.lines().find_map(|l| {
+            let mut p = l.splitn(3, ':').skip(1);
+            let (c, path) = (p.next()?, p.next()?);
+            c.split(',')
+                .any(|c| c == "memory")
+                .then(|| path.to_string())
+        });
+        let (dir, limit_file) = if let Some(path) = v1 {
+            // v1: a child of this process's own memory group.
+            let base = Path::new("/sys/fs/cgroup/memory").join(path.trim_start_matches('/'));
+            let base = if base.exists() {
+                base
+            } else {
+                PathBuf::from("/sys/fs/cgroup/memory")
+            };
+            (base.join(name), "memory.limit_in_bytes")
+        } else if Path::new("/sys/fs/cgroup/cgroup.controllers").exists() {
+            // v2: a sibling of this process's group (a group with children
+            // cannot hold processes), with memory enabled in the parent.
+            let path = own
+                .lines()
+                .find_map(|l| l.strip_prefix("0::"))
+                .unwrap_or("/")
+                .trim_matches('/');
+            let parent = Path::new("/sys/fs/cgroup").join(match path.rfind('/') {
+                Some(i) => &path[..i],
+                None => "",
+            });
+            let _ = std::fs::write(parent.join("cgroup.subtree_control"), "+memory");
+            (parent.join(name), "memory.max")
+        } else {
+            return Err("no cgroup memory controller under /sys/fs/cgroup".into());
+        };
+        std::fs::create_dir(&dir).map_err(|e| {
+            format!(
+                "cannot make the control group {}: {e}; run as root",
+                dir.display()
+            )
+        })?;
+        let group = Self { dir };
+        std::fs::write(group.dir.join(limit_file), limit.to_string())
+            .map_err(|e| format!("cannot set {}: {e}", group.dir.join(limit_file).display()))?;
+        Ok(group)
+    }
+
+    /// Starts a worker inside the group: a shell moves itself in, then
+    /// becomes the worker, so the worker reads its limit from its first line.
+    fn worker(&self, scripts: &Path, host: u8, args: &[&str]) -> WorkerProcess {
+        let script = scripts.join("in-cgroup");
+        std::fs::write(
+            &script,
+            format!(
+                "#!/bin/sh\necho $$ > '{}/cgroup.procs' || exit 1\nexec '{}' \"$@\"\n",
+                self.dir.display(),
+                harness::binary("texsyn-worker").display()
+            ),
+        )
+        .unwrap();
+        std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let args: Vec<OsString> = args.iter().map(OsString::from).collect();
+        spawn_worker(
+            &script,
+            Ipv4Addr::new(127, 0, 0, host),
+            &args,
+            &scripts.join("worker.log"),
+        )
+        .expect("worker starts in its control group")
+    }
+
+    /// The group's peak memory use, where the kernel reports it.
+    fn peak(&self) -> Option<u64> {
+        ["memory.max_usage_in_bytes", "memory.peak"]
+            .iter()
+            .find_map(|f| std::fs::read_to_string(self.dir.join(f)).ok())
+            .and_then(|s| s.trim().parse().ok())
+    }
+
+    /// How often the kernel refused the group memory (v1) or OOM-killed in it (v2).
+    fn oom_events(&self) -> u64 {
+        if let Ok(s) = std::fs::read_to_string(self.dir.join("memory.failcnt")) {
+            return s.trim().parse().unwrap_or(0);
+        }
+        std::fs::read_to_string(self.dir.join("memory.events"))
+            .ok()
+            .and_then(|s| {
+                s.lines()
+                    .find_map(|l| l.strip_prefix("oom_kill ")?.trim().parse().ok())
+            })
+            .unwrap_or(0)
+    }
+}
+
+impl Drop for Cgroup {
+    fn drop(&mut self) {
+        // The worker is killed before this runs; its group empties shortly after.
+        for _ in 0..50 {
+            if std::fs::remove_dir(&self.dir).is_ok() || !self.dir.exists() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+#[test]
+fn a_worker_in_a_control_group_takes_its_cap_from_the_group_and_refuses_instead_of_dying() {
+    const LIMIT: u64 = 512 << 20;
+    let group = match Cgroup::new(LIMIT) {
+        Ok(g) => g,
+        Err(reason) => return harness::skip("the control-group test", &reason),
+    };
+    let token = Token::new();
+    let scripts = tempfile::tempdir().unwrap();
+    let path = token.path.to_str().unwrap().to_string();
+    // No --max-memory: the default is what is under test.
+    let mut w = group.worker(
+        scripts.path(),
+        32,
+        &[
+            "--threads",
+            "2",
+            "--token-file",
+            &path,
+            "--vector-store",
+            "dense",
+        ],
+    );
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let cap = LIMIT / 4 * 3;
+    rt.block_on(async {
+        let c = client(w.address, &token.value).await;
+        let i = c.clone().info(info()).await.unwrap().into_inner();
+        assert_eq!(
+            i.memory_limit, cap,
+            "the default cap is ¾ of the group's limit, not of the host's RAM"
+        );
+        // Two jobs, each with a range of about 0.7 of the cap: together they
+        // would need more than the group allows, and the kernel would kill
+        // the worker; the budget refuses the second instead.
+        let mut granted = Vec::new();
+        for j in ["a", "b"] {
+            let r = c
+                .clone()
+                .load_level(tokio_stream::iter([level(j, 1500)]))
+                .await
+                .unwrap()
+                .into_inner();
+            match c.clone().assign(assign(j, r.total_vectors)).await {
+                Ok(a) => {
+                    let bytes = a.into_inner().bytes;
+                    assert!(bytes > cap / 2 && bytes < cap, "{bytes} of {cap}");
+                    granted.push(bytes);
+                }
+                Err(e) => assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}"),
+            }
+        }
+        assert_eq!(granted.len(), 1, "exactly one of the two ranges fits");
+        let i = c.clone().info(info()).await.unwrap().into_inner();
+        assert!(i.memory_peak <= cap, "reserved {} > {cap}", i.memory_peak);
+        let peak = group.peak();
+        eprintln!(
+            "control group of {} MiB: cap {} MiB, range {} MiB granted once and refused once, \
+             reserved peak {} MiB, group peak {:?} MiB, OOM events {}",
+            LIMIT >> 20,
+            cap >> 20,
+            granted[0] >> 20,
+            i.memory_peak >> 20,
+            peak.map(|p| p >> 20),
+            group.oom_events()
+        );
+        assert!(peak.is_none_or(|p| p < LIMIT), "group peak {peak:?}");
+    });
+    assert!(
+        alive(w.pid()),
+        "the worker was killed inside its control group"
+    );
+    assert_eq!(
+        group.oom_events(),
+        0,
+        "the kernel had to refuse the group memory"
+    );
+    w.kill();
 }

@@ -15,7 +15,7 @@
 
 mod harness;
 
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::sync::mpsc;
@@ -120,14 +120,7 @@ fn in_private_network(scenario: impl FnOnce() + Send + 'static) {
     });
     match t.join() {
         Ok(Ok(())) => {}
-        Ok(Err(reason)) => {
-            if std::env::var("CI").is_ok_and(|v| v == "true") {
-                panic!("partition tests cannot run under CI=true: {reason}");
-            }
-            // Straight to the process's stderr: the test harness captures
-            // `eprintln!` of passing tests, and a skip must be seen.
-            let _ = writeln!(std::io::stderr(), "SKIP: {reason}");
-        }
+        Ok(Err(reason)) => harness::skip("partition tests", &reason),
         Err(panic) => std::panic::resume_unwind(panic),
     }
 }
@@ -513,8 +506,9 @@ fn worker_still_cut_off_at_a_level_start_is_skipped_there_and_rejoins_later() {
             "level {CUT_LEVEL} never started: {}",
             m.log.join("\n")
         );
-        // One connect timeout (5 s) is spent on the silent worker at the level start.
-        let budget = s.fault_free * 4 + Duration::from_secs(10);
+        // The silent worker costs a retry timeout (`--worker-timeout`, 1 s) at
+        // the level start, not the 5 s connect timeout of a first contact.
+        let budget = s.fault_free * 4 + Duration::from_secs(3);
         let report = s.check("long", m, t, budget);
         s.assert_dropped_mid_level(&report, CUT_LEVEL + 1);
         assert_eq!(

@@ -4,6 +4,7 @@
 //! the partition applied to the members with `Assign` under a new epoch.
 
 use std::ops::Range;
+use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use texsyn_engine::VectorSpace;
@@ -143,25 +144,36 @@ impl ClusterSearch {
     }
 
     /// Connect and Info (version handshake) with the slots `todo`, side by side.
+    /// A worker already known to be down or dropped gets the short
+    /// [`ClusterSearch::retry_timeout`] for both: a worker still cut off or
+    /// stopped at a level start then delays the level by that much, not by the
+    /// full connect and call timeouts of a first contact.
     fn handshakes(&self, todo: &[usize]) -> Results<conn::Handshake> {
         let o = &self.opts;
         let jobs: Vec<_> = todo
             .iter()
             .map(|&i| {
-                let spec = self.slots[i].spec.clone();
+                let slot = &self.slots[i];
+                let (connect, call) = if slot.down_reason.is_some() || slot.drops > 0 {
+                    (self.retry_timeout(), self.retry_timeout())
+                } else {
+                    (o.connect_timeout, o.call_timeout)
+                };
+                let spec = slot.spec.clone();
                 let span = tracing::info_span!("worker", address = %spec.address);
-                conn::handshake(
-                    spec,
-                    o.tls.clone(),
-                    o.protocol_version,
-                    o.connect_timeout,
-                    o.call_timeout,
-                )
-                .instrument(span)
+                conn::handshake(spec, o.tls.clone(), o.protocol_version, connect, call)
+                    .instrument(span)
             })
             .collect();
         let results = block_on(self.rt(), join_all(jobs));
         todo.iter().copied().zip(results).collect()
+    }
+
+    /// How long a retry of a known-down worker may take to connect and to
+    /// answer Info: the least search deadline, or the connect timeout if that
+    /// is shorter. A healthy worker answers Info in milliseconds.
+    fn retry_timeout(&self) -> Duration {
+        self.opts.connect_timeout.min(self.opts.deadline_floor)
     }
 
     /// Connects (Info, then Calibrate) every worker not in use.

@@ -143,33 +143,52 @@ fn meminfo_total(meminfo: &str) -> Option<u64> {
         .filter(|&b| b > 0)
 }
 
-/// The memory limit of this process's control group (v2 `memory.max`, else
-/// v1 `memory.limit_in_bytes`), or None when unlimited or unreadable.
+/// The memory limit of this process's control group, or None when unlimited
+/// or unreadable. A limit set on an ancestor binds as well (a pod's limit sits
+/// above its containers' groups), so the smallest along the path counts.
 fn cgroup_limit() -> Option<u64> {
     let own = std::fs::read_to_string("/proc/self/cgroup").unwrap_or_default();
-    let mut candidates = Vec::new();
+    cgroup_limit_files(&own)
+        .iter()
+        .filter_map(|p| std::fs::read_to_string(p).ok())
+        .filter_map(|s| parse_cgroup_limit(&s))
+        .min()
+}
+
+/// The limit files that may bind a process whose `/proc/self/cgroup` reads
+/// `own`: v2 `memory.max` ("0::/path") and v1 `memory.limit_in_bytes` (a line
+/// whose controllers include `memory`), for its group and each ancestor. In a
+/// container the path may name the host's hierarchy while `/sys/fs/cgroup`
+/// shows the container's own group; then only the mount's root exists.
+fn cgroup_limit_files(own: &str) -> Vec<String> {
+    let mut files = Vec::new();
     for line in own.lines() {
-        // v2: "0::/path"; v1: "N:memory:/path" (or a list containing memory).
         let mut parts = line.splitn(3, ':');
         let (_, controllers, path) = (parts.next(), parts.next(), parts.next());
         let (Some(controllers), Some(path)) = (controllers, path) else {
             continue;
         };
-        let path = path.trim_start_matches('/');
-        if controllers.is_empty() {
-            candidates.push(format!("/sys/fs/cgroup/{path}/memory.max"));
-            candidates.push("/sys/fs/cgroup/memory.max".to_string());
+        let (root, file) = if controllers.is_empty() {
+            ("/sys/fs/cgroup", "memory.max")
         } else if controllers.split(',').any(|c| c == "memory") {
-            candidates.push(format!(
-                "/sys/fs/cgroup/memory/{path}/memory.limit_in_bytes"
-            ));
-            candidates.push("/sys/fs/cgroup/memory/memory.limit_in_bytes".to_string());
+            ("/sys/fs/cgroup/memory", "memory.limit_in_bytes")
+        } else {
+            continue;
+        };
+        let mut dir = path.trim_matches('/').to_string();
+        loop {
+            files.push(if dir.is_empty() {
+                format!("{root}/{file}")
+            } else {
+                format!("{root}/{dir}/{file}")
+            });
+            if dir.is_empty() {
+                break;
+            }
+            dir.truncate(dir.rfind('/').unwrap_or(0));
         }
     }
-    candidates
-        .iter()
-        .filter_map(|p| std::fs::read_to_string(p).ok())
-        .find_map(|s| parse_cgroup_limit(&s))
+    files
 }
 
 /// A cgroup limit file's value; None for `max` and for v1's "unlimited"
@@ -234,5 +253,29 @@ mod tests {
         );
         assert_eq!(meminfo_total("MemTotal: 99999999999999999999 kB"), None);
         assert!(default_max_memory() >= 1 << 20);
+    }
+
+    #[test]
+    fn every_ancestor_of_the_group_is_a_candidate() {
+        let v1 = cgroup_limit_files("4:memory:/pod/ctr\n3:cpu:/x\n");
+        assert_eq!(
+            v1,
+            [
+                "/sys/fs/cgroup/memory/pod/ctr/memory.limit_in_bytes",
+                "/sys/fs/cgroup/memory/pod/memory.limit_in_bytes",
+                "/sys/fs/cgroup/memory/memory.limit_in_bytes",
+            ]
+        );
+        let v2 = cgroup_limit_files("0::/a/b\n");
+        assert_eq!(
+            v2,
+            [
+                "/sys/fs/cgroup/a/b/memory.max",
+                "/sys/fs/cgroup/a/memory.max",
+                "/sys/fs/cgroup/memory.max",
+            ]
+        );
+        assert_eq!(cgroup_limit_files("0::/\n"), ["/sys/fs/cgroup/memory.max"]);
+        assert!(cgroup_limit_files("garbage\n2:cpu,cpuacct:/\n").is_empty());
     }
 }
