@@ -62,7 +62,14 @@ fn main() -> Result<()> {
         photo.width,
         photo.height,
     )?;
-    let filled = run(&photo, Mode::Fill { holes }, Config::default())?;
+    let filled = run(
+        &photo,
+        Mode::Fill {
+            holes,
+            source: None,
+        },
+        Config::default(),
+    )?;
     imaging::save_color(&docs.join("fill.png"), &side_by_side(&[&photo, &filled]))?;
 
     println!("extend --tileable: brick, shown tiled 2×2");

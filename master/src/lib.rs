@@ -24,4 +24,4 @@ pub mod launch;
 pub mod search;
 pub mod ycbcr;
 
-pub use block::{synthesize, Config, Mode, Output, Position, Report, SynthMethod};
+pub use block::{synthesize, Config, FillSource, Mode, Output, Position, Report, SynthMethod};

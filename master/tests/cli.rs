@@ -1062,3 +1062,99 @@ fn sigint_stops_local_workers_and_removes_their_token_directory() {
     assert!(!out.exists());
     assert!(temp_files(dir.path()).is_empty());
 }
+
+#[test]
+fn depth_alpha_and_source_errors_name_the_fix() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let sample = assets().join("brick_color_96.png");
+    let sm = s(&sample);
+    let g16 = d.join("g16.png");
+    image::ImageBuffer::from_fn(64, 64, |x, y| image::Luma([(x * 900 + y) as u16]))
+        .save(&g16)
+        .unwrap();
+    let hdr = d.join("hdr.exr");
+    image::DynamicImage::ImageRgb32F(image::ImageBuffer::from_fn(48, 48, |x, y| {
+        image::Rgb([x as f32 / 7.0, y as f32 / 9.0, 2.5])
+    }))
+    .save(&hdr)
+    .unwrap();
+    let mask = d.join("mask.png");
+    image::GrayImage::from_fn(96, 96, |x, y| {
+        image::Luma([if (30..50).contains(&x) && (30..50).contains(&y) {
+            255
+        } else {
+            0
+        }])
+    })
+    .save(&mask)
+    .unwrap();
+    let small = d.join("small.png");
+    image::RgbImage::new(8, 8).save(&small).unwrap();
+    let jpg = d.join("out.jpg");
+    fails(
+        &["extend", s(&g16), "-o", s(&jpg), "--size", "80x80"],
+        &jpg,
+        &["JPEG", "16-bit grey", ".png or .tif"],
+    );
+    let png = d.join("out.png");
+    fails(
+        &["extend", s(&hdr), "-o", s(&png), "--size", "64x64"],
+        &png,
+        &["PNG", "32-bit float RGB", ".tif or .exr"],
+    );
+    fails(
+        &["fill", sm, "--mask-from-alpha", "-o", s(&png)],
+        &png,
+        &["no alpha channel", "--mask"],
+    );
+    fails(
+        &[
+            "fill",
+            sm,
+            "--mask",
+            s(&mask),
+            "--source",
+            s(&small),
+            "-o",
+            s(&png),
+        ],
+        &png,
+        &["fill source is 8×8", "neighbourhood"],
+    );
+    fails(
+        &[
+            "fill",
+            sm,
+            "--mask",
+            s(&mask),
+            "--source",
+            sm,
+            "--source-mask",
+            s(&small),
+            "-o",
+            s(&png),
+        ],
+        &png,
+        &["small.png", "8x8", "same size"],
+    );
+    fails(
+        &["fill", s(&g16), "--mask", s(&mask), "-o", s(&png)],
+        &png,
+        &["mask", "96x96", "64x64", "same size"],
+    );
+    fails(
+        &[
+            "extend",
+            s(&g16),
+            "-o",
+            s(&png),
+            "--size",
+            "80x80",
+            "--chroma-blur",
+            "2",
+        ],
+        &png,
+        &["--chroma-blur", "16-bit grey", "drop --chroma-blur"],
+    );
+}

@@ -2,33 +2,14 @@
 //! determinism across threads and batch sizes, fill never touching known
 //! pixels, copy-map consistency and seamless tiling.
 
-use std::path::PathBuf;
+mod common;
 
+use common::{run, seam, texture};
 use texsyn::block::Silent;
-use texsyn::imaging::{self, ColorImage};
-use texsyn::search::{LevelData, LocalSearch, Plan, PlannedSearch, SearchBackend};
+use texsyn::imaging::ColorImage;
+use texsyn::search::{LevelData, LocalSearch, SearchBackend};
 use texsyn::{synthesize, ycbcr, Config, Mode, Output, Position, SynthMethod};
 use texsyn_engine::{Engine, Hit, Kernel, Metric, QueryBatch};
-
-fn texture(name: &str) -> ColorImage {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../assets/textures")
-        .join(name);
-    imaging::load_color(&p).unwrap()
-}
-
-fn run(sample: &ColorImage, mode: &Mode, cfg: &Config, threads: usize) -> Output {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .unwrap();
-    let mut backend = PlannedSearch::new(
-        Plan::Exact,
-        LocalSearch::new(Engine::default().with_min_chunk(256)),
-    );
-    pool.install(|| synthesize(sample, mode, cfg, &mut backend, &Silent))
-        .unwrap()
-}
 
 /// Every output pixel is the colour-sample pixel its copy-map entry names.
 fn assert_copy_map_consistent(out: &Output, sample: &ColorImage) {
@@ -105,6 +86,7 @@ fn fill_never_changes_a_defined_pixel() {
             &sample,
             &Mode::Fill {
                 holes: holes.clone(),
+                source: None,
             },
             &cfg,
             2,
@@ -149,35 +131,6 @@ fn extend_keeps_the_sample_where_it_was_placed() {
         }
     }
     assert_copy_map_consistent(&out, &sample);
-}
-
-/// Mean absolute luminance step across each vertical pixel boundary: element x
-/// is the step between columns x and x+1, the last one is the wrap-around edge
-/// (column w-1 to column 0). `transpose` does the same for rows.
-fn column_steps(img: &ColorImage, transpose: bool) -> Vec<f64> {
-    let g = texsyn::ycbcr::luminance(img);
-    let (w, h) = if transpose {
-        (g.height, g.width)
-    } else {
-        (g.width, g.height)
-    };
-    let at = |x: usize, y: usize| f64::from(if transpose { g.get(y, x) } else { g.get(x, y) });
-    (0..w)
-        .map(|x| {
-            (0..h)
-                .map(|y| (at(x, y) - at((x + 1) % w, y)).abs())
-                .sum::<f64>()
-                / h as f64
-        })
-        .collect()
-}
-
-/// (wrap-around step, largest interior step, mean interior step).
-fn seam(img: &ColorImage, transpose: bool) -> (f64, f64, f64) {
-    let s = column_steps(img, transpose);
-    let (inner, wrap) = s.split_at(s.len() - 1);
-    let max = inner.iter().cloned().fold(0.0, f64::max);
-    (wrap[0], max, inner.iter().sum::<f64>() / inner.len() as f64)
 }
 
 #[test]
@@ -314,6 +267,7 @@ fn colour_search_tells_apart_colours_of_equal_luminance() {
         .collect();
     let fill = Mode::Fill {
         holes: holes.clone(),
+        source: None,
     };
     let colour = Config {
         colour_search: true,
@@ -391,7 +345,14 @@ fn pruned_search_gives_the_same_synthesis_as_unpruned_exhaustive_search() {
         })
         .collect();
     let cases = [
-        (Mode::Fill { holes }, Metric::L1, false),
+        (
+            Mode::Fill {
+                holes,
+                source: None,
+            },
+            Metric::L1,
+            false,
+        ),
         (
             Mode::Extend {
                 width: 130,

@@ -27,8 +27,12 @@ pub enum Position {
 /// What to make (ARCHITECTURE §3.1).
 #[derive(Debug, Clone)]
 pub enum Mode {
-    /// Constrained synthesis of the holes (true = fill) of the sample itself.
-    Fill { holes: Vec<bool> },
+    /// Constrained synthesis of the holes (true = fill) of the sample: copied
+    /// from the sample itself, or from `source` when given.
+    Fill {
+        holes: Vec<bool>,
+        source: Option<FillSource>,
+    },
     /// A larger canvas with the sample placed in it.
     Extend {
         width: usize,
@@ -41,6 +45,15 @@ pub enum Mode {
         height: usize,
         method: SynthMethod,
     },
+}
+
+/// Another image to fill the holes from (ARCHITECTURE §3.1): the search and
+/// the copies use only it, or only its `region` (true = may be copied from),
+/// while the photo's own pixels stay as they are.
+#[derive(Debug, Clone)]
+pub struct FillSource {
+    pub image: ColorImage,
+    pub region: Option<Vec<bool>>,
 }
 
 /// Synthesis parameters; [`Config::default`] gives good results without tuning.

@@ -32,8 +32,17 @@ pub(super) fn finish(
         .iter()
         .find(|(k, _)| *k == 0)
         .map(|(_, img)| img)
-        .unwrap_or(plan.sample);
+        .unwrap_or(plan.reference);
+    // A fill from another source keeps the photo's own pixels (their copy-map
+    // entries point into the photo).
+    let kept = (!std::ptr::eq(plan.reference, plan.sample)).then(|| plan.known[0].clone());
     let mut image = colour::rebuild(colour_source, &finest.copy, cw, ch)?;
+    if let Some(kept) = &kept {
+        for (i, _) in kept.iter().enumerate().filter(|(_, &k)| k) {
+            let (x, y) = (i % cw, i / cw);
+            image.set(x, y, plan.sample.get(x, y));
+        }
+    }
     if cfg.chroma_blur > 0 {
         colour::chroma_blur_borders(&mut image, &finest.copy, cfg.chroma_blur);
     }
@@ -42,7 +51,9 @@ pub(super) fn finish(
         .copy
         .iter()
         .zip(&finest.lum)
-        .all(|(c, &v)| finest_sample_lum.get(c[0] as usize, c[1] as usize) == v));
+        .enumerate()
+        .filter(|(i, _)| kept.as_ref().is_none_or(|k| !k[*i]))
+        .all(|(_, (c, &v))| finest_sample_lum.get(c[0] as usize, c[1] as usize) == v));
     let levels_out = finished
         .iter()
         .rev()
@@ -70,6 +81,7 @@ pub(super) fn finish(
         image,
         luminance,
         copy_map: finest.copy.clone(),
+        kept,
         sample_size: [colour_source.width, colour_source.height],
         levels: levels_out,
         report,

@@ -44,11 +44,12 @@ pub(super) fn run_level(
     if cfg.colour_search {
         canvas = canvas.with_chroma();
     }
+    let photo = plan.photo_level(l);
     canvas::seed_level(
         &mut canvas,
         plan.placement,
         &plan.known[l],
-        &ls,
+        photo.as_ref().unwrap_or(&ls),
         l,
         &mut plan.rng,
     );

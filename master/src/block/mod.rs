@@ -32,7 +32,7 @@ mod plan;
 pub mod pyramid;
 pub mod queue;
 
-pub use config::{Config, Mode, Position, SynthMethod, MAX_CANVAS_PIXELS};
+pub use config::{Config, FillSource, Mode, Position, SynthMethod, MAX_CANVAS_PIXELS};
 pub use plan::resolve_levels;
 
 /// Receives progress; the CLI draws a bar per level.
@@ -96,8 +96,12 @@ pub struct Report {
 pub struct Output {
     pub image: ColorImage,
     pub luminance: Gray,
-    /// Per output pixel, its source coordinate in the finest sample.
+    /// Per output pixel, its source coordinate in the finest sample (in the
+    /// fill source for a fill from another source, except where `kept`).
     pub copy_map: Vec<[u32; 2]>,
+    /// A fill from another source: the photo's pixels kept as they are (their
+    /// copy-map entry is their own coordinate in the photo). `None` otherwise.
+    pub kept: Option<Vec<bool>>,
     pub sample_size: [usize; 2],
     /// Finished luminance per level, finest first.
     pub levels: Vec<Gray>,

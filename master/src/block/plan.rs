@@ -75,7 +75,10 @@ impl LevelSample {
 /// Everything decided before the first level is synthesised.
 pub(super) struct Plan<'a> {
     pub cfg: &'a Config,
+    /// The image placed on the canvas (the photo of a fill).
     pub sample: &'a ColorImage,
+    /// The image copied from: the fill source, or else `sample`.
+    pub reference: &'a ColorImage,
     pub mode_name: &'static str,
     /// Finest canvas size.
     pub canvas: [usize; 2],
@@ -92,30 +95,44 @@ pub(super) struct Plan<'a> {
     pub known: Vec<Vec<bool>>,
     sample_pyr: Pyramid,
     chroma_pyr: Option<[Pyramid; 2]>,
+    /// A fill from another source: the photo's pyramids (luminance, then Cb
+    /// and Cr for full-colour search), which seed the canvas.
+    photo_pyr: Option<(Pyramid, Option<[Pyramid; 2]>)>,
 }
 
 impl<'a> Plan<'a> {
     /// Checks the request and plans the run (`cfg` is already validated).
-    pub fn new(sample: &'a ColorImage, mode: &Mode, cfg: &'a Config) -> Result<Self> {
+    pub fn new(sample: &'a ColorImage, mode: &'a Mode, cfg: &'a Config) -> Result<Self> {
         let (sw, sh) = (sample.width, sample.height);
         imaging::check_size(sw, sh, "sample")?;
         let n = cfg.neighbourhood;
-        ensure!(
-            sw >= n && sh >= n,
-            "the sample is {sw}×{sh} pixels, smaller than the {n}×{n} neighbourhood; use a larger sample or a smaller --neighbourhood"
-        );
-        let (canvas, mode_name) = canvas_size(mode, [sw, sh])?;
-        let mut levels = checked_levels(mode, [sw, sh], cfg)?;
-
-        let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
-        let main_lum = ycbcr::luminance(sample);
         let holes_defined: Option<Vec<bool>> = match mode {
-            Mode::Fill { holes } => Some(holes.iter().map(|&h| !h).collect()),
+            Mode::Fill { holes, .. } => Some(holes.iter().map(|&h| !h).collect()),
             _ => None,
         };
+        // What the search copies from, and which of its pixels it may use.
+        let (reference, reference_defined) = match mode {
+            Mode::Fill {
+                source: Some(s), ..
+            } => {
+                check_source(s, n)?;
+                (&s.image, s.region.as_ref().map(|r| r.to_vec()))
+            }
+            _ => (sample, holes_defined.clone()),
+        };
+        let (rw, rh) = (reference.width, reference.height);
+        ensure!(
+            rw >= n && rh >= n,
+            "the sample is {rw}×{rh} pixels, smaller than the {n}×{n} neighbourhood; use a larger sample or a smaller --neighbourhood"
+        );
+        let (canvas, mode_name) = canvas_size(mode, [sw, sh])?;
+        let mut levels = checked_levels(mode, [rw, rh], cfg)?;
+
+        let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+        let main_lum = ycbcr::luminance(reference);
         let mut sample_pyr =
-            pyramid::pyramid(&main_lum, holes_defined.as_deref(), levels + 1, false);
-        if cfg.levels == 0 && holes_defined.is_some() {
+            pyramid::pyramid(&main_lum, reference_defined.as_deref(), levels + 1, false);
+        if cfg.levels == 0 && reference_defined.is_some() {
             // Holes grow on coarse levels: drop levels until the coarsest still has
             // enough fully known neighbourhoods to copy from.
             while levels > 1 && coarsest_references(&sample_pyr, levels - 1, n)? < 16 {
@@ -127,12 +144,21 @@ impl<'a> Plan<'a> {
         let placement = canvas::placement(mode, [sw, sh], canvas, n, align, &mut rng)?;
         let known = canvas::known_masks(placement, holes_defined.as_deref(), sw, canvas, levels);
         let chroma_pyr: Option<[Pyramid; 2]> = cfg.colour_search.then(|| {
-            ycbcr::chroma_planes(sample)
-                .map(|g| pyramid::pyramid(&g, holes_defined.as_deref(), levels + 1, false))
+            ycbcr::chroma_planes(reference)
+                .map(|g| pyramid::pyramid(&g, reference_defined.as_deref(), levels + 1, false))
+        });
+        let photo_pyr = (!std::ptr::eq(reference, sample)).then(|| {
+            let d = holes_defined.as_deref();
+            let lum = pyramid::pyramid(&ycbcr::luminance(sample), d, levels + 1, false);
+            let chroma = cfg.colour_search.then(|| {
+                ycbcr::chroma_planes(sample).map(|g| pyramid::pyramid(&g, d, levels + 1, false))
+            });
+            (lum, chroma)
         });
         Ok(Self {
             cfg,
             sample,
+            reference,
             mode_name,
             canvas,
             levels,
@@ -146,6 +172,22 @@ impl<'a> Plan<'a> {
             known,
             sample_pyr,
             chroma_pyr,
+            photo_pyr,
+        })
+    }
+
+    /// What seeds the known pixels of level `l` when they do not come from
+    /// the level's sample: the photo of a fill from another source.
+    pub fn photo_level(&self, l: usize) -> Option<LevelSample> {
+        let (lum, chroma) = self.photo_pyr.as_ref()?;
+        Some(LevelSample {
+            lum: lum[l].0.clone(),
+            defined: None,
+            parent: None,
+            chroma: chroma
+                .as_ref()
+                .map(|c| [c[0][l].0.clone(), c[1][l].0.clone()]),
+            parent_chroma: None,
         })
     }
 
@@ -196,7 +238,7 @@ impl<'a> Plan<'a> {
 fn canvas_size(mode: &Mode, sample: [usize; 2]) -> Result<([usize; 2], &'static str)> {
     let [sw, sh] = sample;
     let (cw, ch, mode_name) = match mode {
-        Mode::Fill { holes } => {
+        Mode::Fill { holes, .. } => {
             ensure!(
                 holes.len() == sw * sh,
                 "the mask has {} pixels but the image has {sw}×{sh}; give a mask of the same size",
@@ -243,6 +285,29 @@ fn canvas_size(mode: &Mode, sample: [usize; 2]) -> Result<([usize; 2], &'static 
         imaging::MAX_SIDE
     );
     Ok(([cw, ch], mode_name))
+}
+
+/// Checks a fill source's region against its image: same size, and enough of
+/// it marked to hold a neighbourhood.
+fn check_source(s: &super::FillSource, n: usize) -> Result<()> {
+    let (w, h) = (s.image.width, s.image.height);
+    imaging::check_size(w, h, "fill source")?;
+    ensure!(
+        w >= n && h >= n,
+        "the fill source is {w}×{h} pixels, smaller than the {n}×{n} neighbourhood; use a larger --source or a smaller --neighbourhood"
+    );
+    if let Some(r) = &s.region {
+        ensure!(
+            r.len() == w * h,
+            "the source mask has {} pixels but the source is {w}×{h}; give a --source-mask of the same size",
+            r.len()
+        );
+        ensure!(
+            r.iter().any(|&d| d),
+            "the source mask marks nothing (no white pixel): nothing to copy from; mark the region to copy from white"
+        );
+    }
+    Ok(())
 }
 
 /// The number of levels, checked against the sample and the per-level samples.

@@ -9,8 +9,8 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use texsyn_engine::{Engine, Metric, Weights};
 
-use crate::block::{self, Config, Mode, Position, Progress, SynthMethod};
-use crate::imaging::{self, ColorImage};
+use crate::block::{self, Config, FillSource, Mode, Position, Progress, SynthMethod};
+use crate::imaging::{self, ColorImage, DeepImage, PixelFormat};
 use crate::search::lbg::LbgSearch;
 use crate::search::{LocalSearch, Plan, PlannedSearch};
 pub use cluster::{run_status, ClusterArgs, ClusterSetup, StatusArgs};
@@ -21,6 +21,8 @@ mod paths;
 const EXAMPLES: &str = "Examples:
   texsyn extend sample.png -o out.png --size 1024x1024 --block 5 --neighbourhood 11 --levels 4 --tileable --seed 7
   texsyn fill photo.png --mask holes.png -o out.png
+  texsyn fill photo.png --mask holes.png --source other.png --source-mask region.png -o out.png
+  texsyn fill tile.png --mask-from-alpha --tileable -o out.png
   texsyn synth sample.png -o out.png --size 512x512
   texsyn synth sample.png -o out.png --size 256x256 --method scanline --report run.json
 
@@ -65,7 +67,9 @@ pub enum ClusterCommand {
 
 #[derive(Args, Debug, Clone)]
 pub struct Common {
-    /// Output image (png, jpg, tif, bmp, webp); written atomically.
+    /// Output image (png, jpg, tif, bmp, webp, exr); written atomically, at the
+    /// input's depth and channels (the format must hold them: 16-bit in png or
+    /// tif, float in exr or tif, alpha not in jpg).
     #[arg(short, long)]
     pub output: PathBuf,
     /// Block size B (odd, 1..=11).
@@ -157,9 +161,23 @@ pub enum MetricArg {
 pub struct FillArgs {
     /// The image with holes.
     pub input: PathBuf,
-    /// Mask image of the same size: white = fill, black = keep.
+    /// Mask image of the same size: white = fill, black = keep (a pixel is a
+    /// hole when its luminance times its opacity is at least half the range;
+    /// 8- or 16-bit).
+    #[arg(long, required_unless_present = "mask_from_alpha")]
+    pub mask: Option<PathBuf>,
+    /// Take the holes from the image's own alpha channel: a pixel is a hole
+    /// where its alpha is below half the range (128 of 255, 32768 of 65535, 0.5).
+    #[arg(long, conflicts_with = "mask")]
+    pub mask_from_alpha: bool,
+    /// Fill from this image instead of the photo itself: the search and the
+    /// copies use only it (converted to the photo's depth and channels).
     #[arg(long)]
-    pub mask: PathBuf,
+    pub source: Option<PathBuf>,
+    /// Copy only from the white part of the --source (same size as the source;
+    /// read like --mask).
+    #[arg(long, requires = "source")]
+    pub source_mask: Option<PathBuf>,
     #[command(flatten)]
     pub common: Common,
 }
@@ -360,8 +378,8 @@ fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
     b.build().context("cannot start the search threads")
 }
 
-fn write_outputs(common: &Common, out: &block::Output) -> Result<()> {
-    imaging::save_color(&common.output, &out.image)?;
+fn write_outputs(common: &Common, out: &block::Output, image: &DeepImage) -> Result<()> {
+    imaging::save_image(&common.output, image)?;
     if let Some(p) = &common.copy_map {
         let img = crate::block::colour::copy_map_image(
             &out.copy_map,
@@ -404,13 +422,63 @@ fn check_outputs(common: &Common, size: (usize, usize)) -> Result<()> {
     Ok(())
 }
 
+/// The full-depth images an output is copied from (ARCHITECTURE §3.11).
+struct Copies {
+    /// What the copy map points into.
+    source: DeepImage,
+    /// The photo of a fill from another source, whose own pixels are kept.
+    photo: Option<DeepImage>,
+}
+
+impl Copies {
+    fn of(source: DeepImage) -> Self {
+        Self {
+            source,
+            photo: None,
+        }
+    }
+
+    /// The output's pixel format: the photo's, or the source's.
+    fn format(&self) -> PixelFormat {
+        self.photo.as_ref().unwrap_or(&self.source).format
+    }
+
+    /// Refuses, before the run, what would lose depth or channels.
+    fn check(&self, common: &Common) -> Result<()> {
+        let format = self.format();
+        ensure!(
+            common.chroma_blur == 0 || format == PixelFormat::RGB8,
+            "--chroma-blur works on 8-bit RGB images; this one is {format}: drop --chroma-blur"
+        );
+        imaging::check_output_format(&common.output, format)
+    }
+
+    /// The output at full depth from the run's copy map.
+    fn output(&self, out: &block::Output, chroma_blur: bool) -> Result<DeepImage> {
+        if chroma_blur {
+            // Blurred colour is made, not copied (8-bit RGB only, checked before).
+            return Ok(DeepImage::from_colour(&out.image));
+        }
+        let kept = self.photo.as_ref().zip(out.kept.as_deref());
+        self.source
+            .rebuild(&out.copy_map, out.image.width, out.image.height, kept)
+    }
+}
+
 /// Runs one synthesis command end to end.
-fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) -> Result<()> {
+fn run_synthesis(
+    sample: &ColorImage,
+    mode: Mode,
+    cfg: Config,
+    common: &Common,
+    copies: Copies,
+) -> Result<()> {
     let size = match &mode {
         Mode::Fill { .. } => (sample.width, sample.height),
         Mode::Extend { width, height, .. } | Mode::Synth { width, height, .. } => (*width, *height),
     };
     check_outputs(common, size)?;
+    copies.check(common)?;
     let engine = Engine::with_kernel_name(&common.kernel)?;
     let pool = thread_pool(common.threads)?;
     let bars = Bars {
@@ -452,13 +520,15 @@ fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) 
     let t = Instant::now();
     let out = pool.install(|| block::synthesize(sample, &mode, &cfg, &mut backend, &bars))?;
     tracing::info!(seconds = t.elapsed().as_secs_f64(), search = %out.report.search, "synthesis done");
-    write_outputs(common, &out)?;
+    let image = copies.output(&out, cfg.chroma_blur > 0)?;
+    write_outputs(common, &out, &image)?;
     if !common.quiet {
         eprintln!(
-            "wrote {} ({}×{}, {} levels, {:.2} s)",
+            "wrote {} ({}×{} {}, {} levels, {:.2} s)",
             common.output.display(),
             out.image.width,
             out.image.height,
+            image.format,
             out.report.levels,
             out.report.synthesis_seconds
         );
@@ -470,20 +540,59 @@ fn run_synthesis(sample: &ColorImage, mode: Mode, cfg: Config, common: &Common) 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Fill(a) => {
-            paths::check_distinct(&[("input", &a.input), ("--mask", &a.mask)], &a.common)?;
+            let mut inputs = vec![("input", a.input.as_path())];
+            inputs.extend(a.mask.as_deref().map(|m| ("--mask", m)));
+            inputs.extend(a.source.as_deref().map(|m| ("--source", m)));
+            inputs.extend(a.source_mask.as_deref().map(|m| ("--source-mask", m)));
+            paths::check_distinct(&inputs, &a.common)?;
             let cfg = Config::try_from(&a.common)?;
-            let img = imaging::load_color(&a.input)?;
-            let holes = imaging::load_mask(&a.mask, img.width, img.height)?;
-            run_synthesis(&img, Mode::Fill { holes }, cfg, &a.common)
+            let photo = imaging::load_image(&a.input)?;
+            let img = photo.search_colour();
+            let holes = match &a.mask {
+                Some(m) => imaging::load_mask(m, img.width, img.height)?,
+                None => imaging::load_alpha_mask(&a.input, &photo)?,
+            };
+            let Some(source_path) = &a.source else {
+                let mode = Mode::Fill {
+                    holes,
+                    source: None,
+                };
+                return run_synthesis(&img, mode, cfg, &a.common, Copies::of(photo));
+            };
+            let source = imaging::load_image(source_path)?;
+            let region = match &a.source_mask {
+                Some(m) => Some(imaging::load_mask(m, source.width, source.height)?),
+                None => None,
+            };
+            if source.format != photo.format {
+                tracing::info!(
+                    source = %source.format,
+                    photo = %photo.format,
+                    "the fill source is converted to the photo's pixel format"
+                );
+            }
+            let source = source.converted(photo.format);
+            let mode = Mode::Fill {
+                holes,
+                source: Some(FillSource {
+                    image: source.search_colour(),
+                    region,
+                }),
+            };
+            let copies = Copies {
+                source,
+                photo: Some(photo),
+            };
+            run_synthesis(&img, mode, cfg, &a.common, copies)
         }
         Command::Extend(a) => {
             paths::check_distinct(&[("input", &a.input)], &a.common)?;
             let cfg = Config::try_from(&a.common)?;
             let (width, height) = parse_size(&a.size)?;
             let position = parse_position(&a.position)?;
-            let img = imaging::load_color(&a.input)?;
+            let deep = imaging::load_image(&a.input)?;
             run_synthesis(
-                &img,
+                &deep.search_colour(),
                 Mode::Extend {
                     width,
                     height,
@@ -491,6 +600,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 },
                 cfg,
                 &a.common,
+                Copies::of(deep),
             )
         }
         Command::Synth(a) => {
@@ -510,10 +620,16 @@ pub fn run(cli: Cli) -> Result<()> {
             let mut inputs = vec![("input", a.input.as_path())];
             inputs.extend(level_files.iter().map(|&(_, f)| ("--level-sample", f)));
             paths::check_distinct(&inputs, &a.common)?;
+            let mut deep = imaging::load_image(&a.input)?;
+            let img = deep.search_colour();
             for (l, file) in level_files {
-                cfg.level_samples.push((l, imaging::load_color(file)?));
+                let level_sample = imaging::load_image(file)?;
+                cfg.level_samples.push((l, level_sample.search_colour()));
+                if l == 0 {
+                    // The finest level's sample is what the output is copied from.
+                    deep = level_sample;
+                }
             }
-            let img = imaging::load_color(&a.input)?;
             let method = match a.method {
                 MethodArg::Grow => SynthMethod::Grow,
                 MethodArg::Scanline => SynthMethod::Scanline,
@@ -527,6 +643,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 },
                 cfg,
                 &a.common,
+                Copies::of(deep),
             )
         }
         Command::Cluster(ClusterCommand::Status(a)) => run_status(&a),

@@ -8,6 +8,7 @@ use std::path::Path;
 use image::{DynamicImage, ExtendedColorType, ImageDecoder, ImageError, ImageFormat};
 
 use super::atomic::{check_writable_any, write_atomic};
+use super::deep::{Channels, DeepImage, Depth, PixelFormat};
 use super::{
     check_size_impl, one_line, ColorImage, Gray, ImageIoError, JPEG_QUALITY, MAX_DECODE_ALLOC,
 };
@@ -169,33 +170,36 @@ pub(super) fn jpeg_complete(r: &mut impl io::Read) -> io::Result<bool> {
     }
 }
 
-/// Loads a colour image (PNG, JPEG, TIFF, BMP, WebP; format from the content).
-/// 16-bit samples are rounded to 8 bit, grey becomes RGB, alpha is ignored.
-pub fn load_color(path: &Path) -> anyhow::Result<ColorImage> {
+/// Loads an image at its own depth and channels (PNG, JPEG, TIFF, BMP, WebP,
+/// OpenEXR; format from the content).
+pub fn load_image(path: &Path) -> anyhow::Result<DeepImage> {
     let img = decode(path, "image")?;
-    let (width, height) = (img.width() as usize, img.height() as usize);
-    let rgb = match img {
-        DynamicImage::ImageRgb8(buf) => buf.into_raw(),
-        other => other.to_rgb8().into_raw(),
-    };
-    Ok(ColorImage { width, height, rgb })
+    DeepImage::from_dynamic(img).map_err(|reason| {
+        ImageIoError::Unsupported {
+            path: path.to_path_buf(),
+            reason,
+        }
+        .into()
+    })
+}
+
+/// Loads a colour image as the search sees it: 8-bit RGB (see
+/// [`DeepImage::search_colour`]; alpha is ignored).
+pub fn load_color(path: &Path) -> anyhow::Result<ColorImage> {
+    Ok(load_image(path)?.search_colour())
 }
 
 /// Loads a hole mask of exactly `width`×`height` (ARCHITECTURE §3.1): true = hole
 /// (luminance >= 128). Alpha composites over black, so transparent = not a hole.
 pub fn load_mask(path: &Path, width: usize, height: usize) -> anyhow::Result<Vec<bool>> {
     let img = decode(path, "mask")?;
-    let (mw, mh) = (img.width() as usize, img.height() as usize);
-    if (mw, mh) != (width, height) {
-        return Err(ImageIoError::MaskSize {
-            path: path.to_path_buf(),
-            mask_width: mw,
-            mask_height: mh,
-            width,
-            height,
-        }
-        .into());
-    }
+    check_mask_size(
+        path,
+        img.width() as usize,
+        img.height() as usize,
+        width,
+        height,
+    )?;
     let rgba = img.to_rgba8();
     Ok(rgba
         .pixels()
@@ -207,6 +211,40 @@ pub fn load_mask(path: &Path, width: usize, height: usize) -> anyhow::Result<Vec
         .collect())
 }
 
+/// Refuses a mask of another size than its image.
+pub(super) fn check_mask_size(
+    path: &Path,
+    mask_width: usize,
+    mask_height: usize,
+    width: usize,
+    height: usize,
+) -> Result<(), ImageIoError> {
+    if (mask_width, mask_height) != (width, height) {
+        return Err(ImageIoError::MaskSize {
+            path: path.to_path_buf(),
+            mask_width,
+            mask_height,
+            width,
+            height,
+        });
+    }
+    Ok(())
+}
+
+/// Loads the holes of `path` from its alpha channel (ARCHITECTURE §3.1): a
+/// pixel is a hole where its alpha is below half the range
+/// ([`DeepImage::alpha_holes`]).
+pub fn load_alpha_mask(path: &Path, img: &DeepImage) -> anyhow::Result<Vec<bool>> {
+    img.alpha_holes().ok_or_else(|| {
+        anyhow::anyhow!(
+            "{} has no alpha channel ({}), so --mask-from-alpha finds no holes; \
+             give the holes with --mask FILE or save the image with transparency where to fill",
+            path.display(),
+            img.format
+        )
+    })
+}
+
 /// Output formats, chosen by extension.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum OutFormat {
@@ -215,6 +253,53 @@ enum OutFormat {
     Tiff,
     Bmp,
     WebP,
+    Exr,
+}
+
+impl OutFormat {
+    fn name(self) -> &'static str {
+        match self {
+            OutFormat::Png => "PNG",
+            OutFormat::Jpeg => "JPEG",
+            OutFormat::Tiff => "TIFF",
+            OutFormat::Bmp => "BMP",
+            OutFormat::WebP => "WebP",
+            OutFormat::Exr => "OpenEXR",
+        }
+    }
+
+    /// Whether the `image` crate's encoder for this format writes `f`
+    /// without converting it.
+    fn holds(self, f: PixelFormat) -> bool {
+        use Channels::*;
+        match (self, f.depth) {
+            (OutFormat::Png, Depth::U8 | Depth::U16) => true,
+            (OutFormat::Tiff, Depth::U8 | Depth::U16) => f.channels != GrayAlpha,
+            (OutFormat::Tiff | OutFormat::Exr, Depth::F32) => true,
+            (OutFormat::Jpeg, Depth::U8) => matches!(f.channels, Gray | Rgb),
+            // Neither has a grey mode the decoder gives back: grey would be read as RGB.
+            (OutFormat::WebP | OutFormat::Bmp, Depth::U8) => matches!(f.channels, Rgb | Rgba),
+            _ => false,
+        }
+    }
+}
+
+/// The output extensions whose format holds `f`, for error messages.
+fn extensions_holding(f: PixelFormat) -> String {
+    let all = [
+        (OutFormat::Png, ".png"),
+        (OutFormat::Tiff, ".tif"),
+        (OutFormat::Exr, ".exr"),
+        (OutFormat::WebP, ".webp"),
+        (OutFormat::Bmp, ".bmp"),
+        (OutFormat::Jpeg, ".jpg"),
+    ];
+    let names: Vec<_> = all
+        .iter()
+        .filter(|(o, _)| o.holds(f))
+        .map(|(_, e)| *e)
+        .collect();
+    names.join(" or ")
 }
 
 fn output_format(path: &Path) -> Result<OutFormat, ImageIoError> {
@@ -232,6 +317,7 @@ fn output_format(path: &Path) -> Result<OutFormat, ImageIoError> {
         "tif" | "tiff" => OutFormat::Tiff,
         "bmp" => OutFormat::Bmp,
         "webp" => OutFormat::WebP,
+        "exr" => OutFormat::Exr,
         _ => {
             return Err(unknown(format!(
                 "unknown extension \".{}\"",
@@ -265,6 +351,9 @@ fn encode<W: Write + io::Seek>(
         }
         OutFormat::Bmp => {
             image::write_buffer_with_format(w, buf, w32, h32, color, ImageFormat::Bmp)
+        }
+        OutFormat::Exr => {
+            image::write_buffer_with_format(w, buf, w32, h32, color, ImageFormat::OpenExr)
         }
     }
 }
@@ -321,6 +410,54 @@ pub fn save_color(path: &Path, img: &ColorImage) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Saves an image at its own depth and channels; format from the extension,
+/// which must hold them ([`check_output_format`]); atomic (temp file + rename).
+pub fn save_image(path: &Path, img: &DeepImage) -> anyhow::Result<()> {
+    let fmt = output_format(path)?;
+    format_holds(path, fmt, img.format)?;
+    let bytes = img.bytes();
+    check_buffer(
+        path,
+        img.width,
+        img.height,
+        img.format.bytes_per_pixel(),
+        bytes.len(),
+    )?;
+    write_atomic(path, |w| {
+        encode(
+            w,
+            bytes,
+            img.width,
+            img.height,
+            img.format.color_type(),
+            fmt,
+        )
+        .map_err(|e| one_line(&e))
+    })?;
+    Ok(())
+}
+
+/// Checks, before a long run, that the format of `path` (from its extension)
+/// holds pixels of `format` without losing depth or channels.
+pub fn check_output_format(path: &Path, format: PixelFormat) -> anyhow::Result<()> {
+    format_holds(path, output_format(path)?, format).map_err(Into::into)
+}
+
+fn format_holds(path: &Path, fmt: OutFormat, format: PixelFormat) -> Result<(), ImageIoError> {
+    if fmt.holds(format) {
+        return Ok(());
+    }
+    Err(ImageIoError::Write {
+        path: path.to_path_buf(),
+        reason: format!(
+            "{} cannot hold the input's {format} pixels without losing depth or channels; \
+             use {}",
+            fmt.name(),
+            extensions_holding(format)
+        ),
+    })
+}
+
 /// Saves a grey image; format from the extension; atomic (temp file + rename).
 pub fn save_gray(path: &Path, g: &Gray) -> anyhow::Result<()> {
     let fmt = output_format(path)?;
@@ -344,7 +481,7 @@ pub fn check_output_size(path: &Path, width: usize, height: usize) -> anyhow::Re
     let (name, max) = match output_format(path)? {
         OutFormat::Jpeg => ("JPEG", 65_535),
         OutFormat::WebP => ("WebP", 16_383),
-        OutFormat::Png | OutFormat::Tiff | OutFormat::Bmp => return Ok(()),
+        OutFormat::Png | OutFormat::Tiff | OutFormat::Bmp | OutFormat::Exr => return Ok(()),
     };
     if width > max || height > max {
         return Err(ImageIoError::FormatTooSmall {

@@ -1,18 +1,23 @@
-//! Images at the edges, plain slices inside (ARCHITECTURE §3, §3.1, §3.10),
-//! shared by every synthesis method.
+//! Images at the edges, plain slices inside (ARCHITECTURE §3, §3.1, §3.10,
+//! §3.11), shared by every synthesis method.
 //!
-//! Loading and saving go through the `image` crate; everything else in the
-//! library sees [`ColorImage`] (8-bit RGB) and [`Gray`] (8-bit luminance) as
-//! plain row-major byte vectors.
+//! Loading and saving go through the `image` crate. An input is read at its
+//! own depth and channels as a [`DeepImage`] (8-bit, 16-bit or float; grey,
+//! grey+alpha, RGB or RGBA); the search sees its 8-bit RGB view
+//! ([`ColorImage`], see [`DeepImage::search_colour`]) and 8-bit luminance
+//! ([`Gray`]) as plain row-major byte vectors, and the output is rebuilt from
+//! the copy map at the input's depth ([`DeepImage::rebuild`]) and saved in a
+//! format that holds it ([`save_image`]; a format that cannot is refused
+//! before the run).
 //!
 //! Loading rules: the format is guessed from the file content (not the
-//! extension); 16-bit samples are rounded to 8 bit; grey images are replicated
-//! to RGB; EXIF orientation is applied; **alpha is ignored** for colour images
-//! (the stored RGB is kept as is), while for masks a transparent pixel is
-//! composited over black, i.e. it never marks a hole (a mask pixel is a hole
-//! when its luminance times its opacity is at least 128 of 255, for 8- and
-//! 16-bit masks alike). Only regular, non-empty files are read: a FIFO or
-//! device is refused before it is opened.
+//! extension); EXIF orientation is applied; **alpha is not searched** but is
+//! copied with its pixel. For masks, a transparent pixel is composited over
+//! black, i.e. it never marks a hole (a mask pixel is a hole when its
+//! luminance times its opacity is at least 128 of 255, for 8- and 16-bit
+//! masks alike); `--mask-from-alpha` instead marks a hole where the image's
+//! own alpha is below half its range. Only regular, non-empty files are read:
+//! a FIFO or device is refused before it is opened.
 //!
 //! Saving is atomic: the image is encoded into a hidden temporary file in the
 //! target directory, synced, and renamed over the target, so an interrupted or
@@ -25,13 +30,16 @@
 use std::path::PathBuf;
 
 mod atomic;
+mod deep;
 mod io;
 #[cfg(test)]
 mod tests;
 
 pub use atomic::check_writable_any;
+pub use deep::{Channels, DeepImage, Depth, PixelFormat};
 pub use io::{
-    check_output_size, check_writable, load_color, load_mask, save_bytes, save_color, save_gray,
+    check_output_format, check_output_size, check_writable, load_alpha_mask, load_color,
+    load_image, load_mask, save_bytes, save_color, save_gray, save_image,
 };
 
 /// Largest number of pixels of an input image or canvas (64 Mi pixels).
@@ -43,7 +51,7 @@ const MAX_DECODE_ALLOC: u64 = 1 << 30;
 /// JPEG quality used for saving (the encoder default of 75 is too lossy for textures).
 const JPEG_QUALITY: u8 = 95;
 /// Output extensions, as listed in error messages.
-const SUPPORTED_EXTENSIONS: &str = ".png, .jpg, .jpeg, .tif, .tiff, .bmp, .webp";
+const SUPPORTED_EXTENSIONS: &str = ".png, .jpg, .jpeg, .tif, .tiff, .bmp, .webp, .exr";
 
 /// An 8-bit RGB image, row-major, 3 bytes per pixel.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -169,7 +177,7 @@ pub enum ImageIoError {
     #[error("cannot read {}: {reason}", path.display())]
     Unreadable { path: PathBuf, reason: String },
     #[error(
-        "{} is not an image in a supported format (PNG, JPEG, TIFF, BMP or WebP); convert it to PNG",
+        "{} is not an image in a supported format (PNG, JPEG, TIFF, BMP, WebP or OpenEXR); convert it to PNG",
         .0.display()
     )]
     NotAnImage(PathBuf),

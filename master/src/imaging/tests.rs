@@ -399,3 +399,143 @@ fn fifo_and_empty_files_are_refused_without_opening() {
         assert!(e.contains("not a regular file"), "{e}");
     }
 }
+
+/// Every pixel format the tool reads, filled with varied samples.
+fn deep_images(w: u32, h: u32) -> Vec<DeepImage> {
+    let v = |x: u32, y: u32, c: u32| (x * 7919 + y * 104_729 + c * 31_337) % 65_536;
+    let u8s = |n: u32| -> Vec<u8> {
+        (0..w * h * n)
+            .map(|i| v(i % w, i / w, i % n) as u8)
+            .collect()
+    };
+    let u16s = |n: u32| -> Vec<u16> {
+        (0..w * h * n)
+            .map(|i| v(i % w, i / w, i % n) as u16)
+            .collect()
+    };
+    let f32s = |n: u32| -> Vec<f32> {
+        (0..w * h * n)
+            .map(|i| v(i % w, i / w, i % n) as f32 / 9000.0)
+            .collect()
+    };
+    use image::DynamicImage as D;
+    let buf = |d: Option<D>| DeepImage::from_dynamic(d.unwrap()).unwrap();
+    vec![
+        buf(ImageBuffer::from_raw(w, h, u8s(1)).map(D::ImageLuma8)),
+        buf(ImageBuffer::from_raw(w, h, u8s(2)).map(D::ImageLumaA8)),
+        buf(ImageBuffer::from_raw(w, h, u8s(3)).map(D::ImageRgb8)),
+        buf(ImageBuffer::from_raw(w, h, u8s(4)).map(D::ImageRgba8)),
+        buf(ImageBuffer::from_raw(w, h, u16s(1)).map(D::ImageLuma16)),
+        buf(ImageBuffer::from_raw(w, h, u16s(2)).map(D::ImageLumaA16)),
+        buf(ImageBuffer::from_raw(w, h, u16s(3)).map(D::ImageRgb16)),
+        buf(ImageBuffer::from_raw(w, h, u16s(4)).map(D::ImageRgba16)),
+        buf(ImageBuffer::from_raw(w, h, f32s(3)).map(D::ImageRgb32F)),
+        buf(ImageBuffer::from_raw(w, h, f32s(4)).map(D::ImageRgba32F)),
+    ]
+}
+
+#[test]
+fn every_format_said_to_hold_a_layout_gives_it_back_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut held = Vec::new();
+    for img in deep_images(23, 17) {
+        for ext in ["png", "tif", "exr", "webp", "bmp", "jpg"] {
+            let p = dir.path().join(format!("x.{ext}"));
+            let claim = check_output_format(&p, img.format);
+            let saved = save_image(&p, &img);
+            assert_eq!(
+                claim.is_ok(),
+                saved.is_ok(),
+                "{} .{ext}: the check and the save disagree: {claim:?} {saved:?}",
+                img.format
+            );
+            let Ok(()) = saved else {
+                let e = err_text(saved);
+                assert!(e.contains("use ."), "{e}");
+                continue;
+            };
+            let back = load_image(&p).unwrap();
+            assert_eq!(back.format, img.format, ".{ext}: format");
+            if ext != "jpg" {
+                assert!(back == img, "{} .{ext}: pixels changed", img.format);
+            }
+            held.push(format!("{} .{ext}", img.format));
+        }
+    }
+    // Every layout has a lossless home.
+    for img in deep_images(2, 2) {
+        assert!(
+            held.iter()
+                .any(|h| h.starts_with(&img.format.to_string()) && !h.ends_with("jpg")),
+            "{} has no format: {held:?}",
+            img.format
+        );
+    }
+}
+
+#[test]
+fn rebuild_copies_whole_pixels_and_keeps_the_photo_where_told() {
+    for img in deep_images(9, 7) {
+        let copy: Vec<[u32; 2]> = (0..4 * 3).map(|i| [(i * 5) % 9, (i * 3) % 7]).collect();
+        let out = img.rebuild(&copy, 4, 3, None).unwrap();
+        for (i, &[sx, sy]) in copy.iter().enumerate() {
+            assert_eq!(out.pixel(i % 4, i / 4), img.pixel(sx as usize, sy as usize));
+        }
+        let photo = img.rebuild(&vec![[8, 6]; 12], 4, 3, None).unwrap();
+        let kept: Vec<bool> = (0..12).map(|i| i % 2 == 0).collect();
+        let mixed = img.rebuild(&copy, 4, 3, Some((&photo, &kept))).unwrap();
+        for (i, &k) in kept.iter().enumerate() {
+            let want = if k {
+                photo.pixel(i % 4, i / 4)
+            } else {
+                out.pixel(i % 4, i / 4)
+            };
+            assert_eq!(mixed.pixel(i % 4, i / 4), want);
+        }
+        assert!(
+            img.rebuild(&[[9, 0]], 1, 1, None).is_err(),
+            "outside the source"
+        );
+    }
+}
+
+#[test]
+fn search_colour_keeps_8_bit_rgb_and_tone_maps_float() {
+    let imgs = deep_images(16, 16);
+    let rgb8 = &imgs[2];
+    assert_eq!(rgb8.search_colour().rgb, rgb8.bytes());
+    // 16-bit rounds as the image crate does.
+    let rgb16 = &imgs[6];
+    assert_eq!(
+        rgb16.search_colour().rgb,
+        rgb16.to_dynamic().to_rgb8().into_raw()
+    );
+    // Float over 1 is not clamped flat: the white point is the 99.5th percentile.
+    let f = &imgs[8];
+    let c = f.search_colour();
+    let distinct: std::collections::HashSet<u8> = c.rgb.iter().copied().collect();
+    assert!(distinct.len() > 100, "{} levels", distinct.len());
+    assert!(c.rgb.contains(&255) && c.rgb.contains(&0));
+}
+
+#[test]
+fn alpha_below_half_marks_a_hole_at_every_depth() {
+    use image::DynamicImage as D;
+    let a8 = D::ImageLumaA8(ImageBuffer::from_raw(3, 1, vec![0, 127, 0, 128, 9, 255]).unwrap());
+    let a16 =
+        D::ImageRgba16(ImageBuffer::from_raw(2, 1, vec![1, 2, 3, 32767, 1, 2, 3, 32768]).unwrap());
+    let af = D::ImageRgba32F(
+        ImageBuffer::from_raw(
+            3,
+            1,
+            vec![0., 0., 0., 0.49, 0., 0., 0., 0.5, 1., 1., 1., f32::NAN],
+        )
+        .unwrap(),
+    );
+    let holes = |d: D| DeepImage::from_dynamic(d).unwrap().alpha_holes().unwrap();
+    assert_eq!(holes(a8), [true, false, false]);
+    assert_eq!(holes(a16), [true, false]);
+    assert_eq!(holes(af), [true, false, true]);
+    let rgb = DeepImage::from_colour(&pattern(2, 2));
+    assert!(rgb.alpha_holes().is_none());
+}
