@@ -295,7 +295,10 @@ impl DeepImage {
                     match self.format.depth {
                         Depth::U8 => s[0] < 128,
                         Depth::U16 => u16::from_ne_bytes([s[0], s[1]]) < 32768,
-                        Depth::F32 => !(f32::from_ne_bytes([s[0], s[1], s[2], s[3]]) >= 0.5),
+                        Depth::F32 => {
+                            let a = f32::from_ne_bytes([s[0], s[1], s[2], s[3]]);
+                            a.is_nan() || a < 0.5
+                        }
                     }
                 })
                 .collect(),

@@ -481,7 +481,7 @@ fn rebuild_copies_whole_pixels_and_keeps_the_photo_where_told() {
         for (i, &[sx, sy]) in copy.iter().enumerate() {
             assert_eq!(out.pixel(i % 4, i / 4), img.pixel(sx as usize, sy as usize));
         }
-        let photo = img.rebuild(&vec![[8, 6]; 12], 4, 3, None).unwrap();
+        let photo = img.rebuild(&[[8, 6]; 12], 4, 3, None).unwrap();
         let kept: Vec<bool> = (0..12).map(|i| i % 2 == 0).collect();
         let mixed = img.rebuild(&copy, 4, 3, Some((&photo, &kept))).unwrap();
         for (i, &k) in kept.iter().enumerate() {
