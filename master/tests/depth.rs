@@ -501,7 +501,7 @@ fn alpha_survives_extend_and_fill_and_can_mark_the_holes() {
     let out = dir.path().join("extended.png");
     cli(&[
         "extend",
-        s(&out.with_file_name("in.png")),
+        s(&input),
         "-o",
         s(&out),
         "--size",
@@ -511,11 +511,6 @@ fn alpha_survives_extend_and_fill_and_can_mark_the_holes() {
         "4",
         "--quiet",
     ]);
-    let cfg = Config {
-        seed: 4,
-        tileable: true,
-        ..Config::default()
-    };
     let mode = Mode::Extend {
         width: 128,
         height: 128,
