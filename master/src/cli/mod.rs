@@ -547,12 +547,12 @@ pub fn run(cli: Cli) -> Result<()> {
             paths::check_distinct(&inputs, &a.common)?;
             let cfg = Config::try_from(&a.common)?;
             let photo = imaging::load_image(&a.input)?;
-            let img = photo.search_colour();
             let holes = match &a.mask {
-                Some(m) => imaging::load_mask(m, img.width, img.height)?,
+                Some(m) => imaging::load_mask(m, photo.width, photo.height)?,
                 None => imaging::load_alpha_mask(&a.input, &photo)?,
             };
             let Some(source_path) = &a.source else {
+                let img = photo.search_colour();
                 let mode = Mode::Fill {
                     holes,
                     source: None,
@@ -572,10 +572,13 @@ pub fn run(cli: Cli) -> Result<()> {
                 );
             }
             let source = source.converted(photo.format);
+            // One view for both, so that their 8-bit values compare.
+            let view = imaging::SearchView::of(&[&photo, &source]);
+            let img = photo.search_colour_in(&view);
             let mode = Mode::Fill {
                 holes,
                 source: Some(FillSource {
-                    image: source.search_colour(),
+                    image: source.search_colour_in(&view),
                     region,
                 }),
             };
@@ -621,10 +624,19 @@ pub fn run(cli: Cli) -> Result<()> {
             inputs.extend(level_files.iter().map(|&(_, f)| ("--level-sample", f)));
             paths::check_distinct(&inputs, &a.common)?;
             let mut deep = imaging::load_image(&a.input)?;
-            let img = deep.search_colour();
+            let mut level_samples = Vec::new();
             for (l, file) in level_files {
-                let level_sample = imaging::load_image(file)?;
-                cfg.level_samples.push((l, level_sample.search_colour()));
+                level_samples.push((l, imaging::load_image(file)?));
+            }
+            // One view for the sample and its level samples, so that their
+            // 8-bit values compare.
+            let mut all = vec![&deep];
+            all.extend(level_samples.iter().map(|(_, s)| s));
+            let view = imaging::SearchView::of(&all);
+            let img = deep.search_colour_in(&view);
+            for (l, level_sample) in level_samples {
+                cfg.level_samples
+                    .push((l, level_sample.search_colour_in(&view)));
                 if l == 0 {
                     // The finest level's sample is what the output is copied from.
                     deep = level_sample;

@@ -219,42 +219,33 @@ impl DeepImage {
         out
     }
 
-    /// The 8-bit RGB view the search works on (alpha is not searched; the
-    /// stored colour is used as it is). 8- and 16-bit samples are rounded to
-    /// 8 bit and grey is replicated, as the `image` crate converts them. Float
-    /// samples are linear and may exceed 1: they are divided by the image's
-    /// white point (the 99.5th percentile of its finite channel values, 1 if
-    /// that is not positive), clamped to [0, 1] and gamma-encoded with
-    /// exponent 1/2.2, so that highlights do not flatten the rest; NaN reads
-    /// as 0 and +∞ as white.
+    /// The 8-bit RGB view the search works on, under this image's own
+    /// [`SearchView`] (see there). Images searched together (a fill and its
+    /// source, a sample and its level samples) must share one view:
+    /// [`SearchView::of`] over all of them, then [`Self::search_colour_in`].
     pub fn search_colour(&self) -> ColorImage {
+        self.search_colour_in(&SearchView::of(&[self]))
+    }
+
+    /// The 8-bit RGB view of this image under `view`. Alpha is not searched
+    /// (the stored colour is used as it is) and grey is replicated.
+    pub fn search_colour_in(&self, view: &SearchView) -> ColorImage {
         let (width, height) = (self.width, self.height);
-        let rgb = match (self.format.depth, self.format.channels) {
-            (Depth::U8, Channels::Rgb) => self.bytes.clone(),
-            (Depth::F32, _) => {
-                let f = f32s(&self.bytes);
-                let step = self.format.channel_count();
-                let colour = if self.format.has_alpha() {
-                    step - 1
-                } else {
-                    step
+        let step = self.format.channel_count();
+        let colour = step - usize::from(self.format.has_alpha());
+        let rgb = match (self.format.depth, view) {
+            (Depth::U8, _) if self.format == PixelFormat::RGB8 => self.bytes.clone(),
+            (Depth::U8, _) | (_, SearchView::Rounded) => self.to_dynamic().to_rgb8().into_raw(),
+            (Depth::U16, &SearchView::Stretched { low, high }) => {
+                let scale = 255.0 / f64::from(high.saturating_sub(low).max(1));
+                let encode = |v: u16| {
+                    (f64::from(v.saturating_sub(low)) * scale)
+                        .round()
+                        .min(255.0) as u8
                 };
-                let mut values: Vec<f32> = f
-                    .chunks_exact(step)
-                    .flat_map(|p| p[..colour].iter().copied())
-                    .filter(|v| v.is_finite())
-                    .collect();
-                let white = if values.is_empty() {
-                    1.0
-                } else {
-                    let k = ((values.len() - 1) as f64 * 0.995).round() as usize;
-                    let (_, w, _) = values.select_nth_unstable_by(k, f32::total_cmp);
-                    if *w > 0.0 {
-                        *w
-                    } else {
-                        1.0
-                    }
-                };
+                rgb_of(&u16s(&self.bytes), step, colour, encode)
+            }
+            (Depth::F32, &SearchView::ToneMapped { white }) => {
                 let encode = |v: f32| -> u8 {
                     if v.is_nan() {
                         return 0;
@@ -262,18 +253,20 @@ impl DeepImage {
                     let x = (f64::from(v) / f64::from(white)).clamp(0.0, 1.0);
                     (x.powf(1.0 / 2.2) * 255.0).round() as u8
                 };
-                f.chunks_exact(step)
-                    .flat_map(|p| {
-                        let c = &p[..colour];
-                        let (r, g, b) = match c.len() {
-                            1 => (c[0], c[0], c[0]),
-                            _ => (c[0], c[1], c[2]),
-                        };
-                        [encode(r), encode(g), encode(b)]
-                    })
-                    .collect()
+                rgb_of(&f32s(&self.bytes), step, colour, encode)
             }
-            _ => self.to_dynamic().to_rgb8().into_raw(),
+            (Depth::U16, &SearchView::ToneMapped { white }) => {
+                // A 16-bit image searched with a float one (never made by
+                // the CLI, which converts a fill source to the photo's format).
+                let f = self.converted(PixelFormat {
+                    depth: Depth::F32,
+                    channels: self.format.channels,
+                });
+                return f.search_colour_in(&SearchView::ToneMapped { white });
+            }
+            (Depth::F32, &SearchView::Stretched { .. }) => {
+                return self.search_colour_in(&SearchView::of(&[self]));
+            }
         };
         ColorImage { width, height, rgb }
     }
@@ -364,6 +357,105 @@ impl DeepImage {
 }
 
 /// Samples as native-endian bytes.
+/// How the full-depth samples are brought to the 8 bits the search compares
+/// (ARCHITECTURE §3.11). 8-bit images are always searched as they are.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SearchView {
+    /// Rounded to 8 bit as the `image` crate converts (nothing 16-bit or
+    /// float was among the images).
+    Rounded,
+    /// 16-bit samples: the range `low..=high` the images actually use is
+    /// stretched over 0..=255, so that a smooth height map whose values
+    /// span a few hundredths of the 16-bit range is searched with all 256
+    /// levels rather than the handful that plain rounding leaves it.
+    Stretched { low: u16, high: u16 },
+    /// Float samples are linear and may exceed 1: they are divided by the
+    /// white point (the 99.5th percentile of the finite colour values, 1 if
+    /// that is not positive), clamped to [0, 1] and gamma-encoded with
+    /// exponent 1/2.2, so that highlights do not flatten the rest; NaN reads
+    /// as 0 and +∞ as white.
+    ToneMapped { white: f32 },
+}
+
+impl SearchView {
+    /// The one view under which `images` are searched together: from their
+    /// deepest format, over the colour samples of all of them (alpha is not
+    /// counted).
+    pub fn of(images: &[&DeepImage]) -> Self {
+        let colour_samples = |img: &&DeepImage| {
+            let step = img.format.channel_count();
+            let colour = step - usize::from(img.format.has_alpha());
+            (step, colour)
+        };
+        if images.iter().any(|i| i.format.depth == Depth::F32) {
+            let mut values: Vec<f32> = images
+                .iter()
+                .flat_map(|img| {
+                    let (step, colour) = colour_samples(img);
+                    let f = match img.format.depth {
+                        Depth::F32 => f32s(&img.bytes),
+                        _ => f32s(
+                            &img.converted(PixelFormat {
+                                depth: Depth::F32,
+                                channels: img.format.channels,
+                            })
+                            .bytes,
+                        ),
+                    };
+                    f.chunks_exact(step)
+                        .flat_map(|p| p[..colour].to_vec())
+                        .collect::<Vec<_>>()
+                })
+                .filter(|v| v.is_finite())
+                .collect();
+            let white = if values.is_empty() {
+                1.0
+            } else {
+                let k = ((values.len() - 1) as f64 * 0.995).round() as usize;
+                let (_, w, _) = values.select_nth_unstable_by(k, f32::total_cmp);
+                if *w > 0.0 {
+                    *w
+                } else {
+                    1.0
+                }
+            };
+            return Self::ToneMapped { white };
+        }
+        let mut range: Option<(u16, u16)> = None;
+        for img in images.iter().filter(|i| i.format.depth == Depth::U16) {
+            let (step, colour) = colour_samples(img);
+            for p in u16s(&img.bytes).chunks_exact(step) {
+                for &v in &p[..colour] {
+                    range = Some(match range {
+                        None => (v, v),
+                        Some((lo, hi)) => (lo.min(v), hi.max(v)),
+                    });
+                }
+            }
+        }
+        match range {
+            Some((low, high)) => Self::Stretched { low, high },
+            None => Self::Rounded,
+        }
+    }
+}
+
+/// Packs the colour samples of `samples` (`step` per pixel, the first
+/// `colour` of them colour) as 8-bit RGB, replicating grey.
+fn rgb_of<T: Copy>(samples: &[T], step: usize, colour: usize, encode: impl Fn(T) -> u8) -> Vec<u8> {
+    samples
+        .chunks_exact(step)
+        .flat_map(|p| {
+            let c = &p[..colour];
+            let (r, g, b) = match c.len() {
+                1 => (c[0], c[0], c[0]),
+                _ => (c[0], c[1], c[2]),
+            };
+            [encode(r), encode(g), encode(b)]
+        })
+        .collect()
+}
+
 fn ne_bytes<T: bytemuck::Pod>(v: &[T]) -> Vec<u8> {
     bytemuck::cast_slice(v).to_vec()
 }

@@ -36,7 +36,7 @@ mod io;
 mod tests;
 
 pub use atomic::check_writable_any;
-pub use deep::{Channels, DeepImage, Depth, PixelFormat};
+pub use deep::{Channels, DeepImage, Depth, PixelFormat, SearchView};
 pub use io::{
     check_output_format, check_output_size, check_writable, load_alpha_mask, load_color,
     load_image, load_mask, save_bytes, save_color, save_gray, save_image,

@@ -1,5 +1,6 @@
 //! Tests of image loading, saving and atomic writes.
 
+use std::collections::HashSet;
 use std::fs::{self, File};
 use std::io::Write;
 use std::path::Path;
@@ -91,7 +92,7 @@ fn gray_roundtrip_and_gray_loads_as_rgb() {
 }
 
 #[test]
-fn sixteen_bit_png_is_rounded() {
+fn sixteen_bit_png_is_read_over_its_range() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("deep.png");
     let vals: [u16; 4] = [0, 65535, 32896, 128]; // 0, 255, 128, round(0.498) = 0
@@ -103,12 +104,15 @@ fn sixteen_bit_png_is_rounded() {
     let img = load_color(&p).unwrap();
     let r: Vec<u8> = img.rgb.chunks(3).map(|c| c[0]).collect();
     assert_eq!(r, vec![0, 255, 128, 0]);
-    // 16-bit grey too.
+    // 16-bit grey too; a narrower range is stretched over 0..=255.
     let p2 = dir.path().join("deep_gray.png");
-    ImageBuffer::<Luma<u16>, _>::from_fn(2, 1, |x, _| Luma([[257u16, 514][x as usize]]))
+    ImageBuffer::<Luma<u16>, _>::from_fn(3, 1, |x, _| Luma([[257u16, 514, 771][x as usize]]))
         .save(&p2)
         .unwrap();
-    assert_eq!(load_color(&p2).unwrap().rgb, vec![1, 1, 1, 2, 2, 2]);
+    assert_eq!(
+        load_color(&p2).unwrap().rgb,
+        vec![0, 0, 0, 128, 128, 128, 255, 255, 255]
+    );
 }
 
 #[test]
@@ -500,20 +504,19 @@ fn rebuild_copies_whole_pixels_and_keeps_the_photo_where_told() {
 }
 
 #[test]
-fn search_colour_keeps_8_bit_rgb_and_tone_maps_float() {
+fn search_colour_keeps_8_bit_rgb_stretches_16_bit_and_tone_maps_float() {
     let imgs = deep_images(16, 16);
     let rgb8 = &imgs[2];
     assert_eq!(rgb8.search_colour().rgb, rgb8.bytes());
-    // 16-bit rounds as the image crate does.
+    // 16-bit is stretched over its own range: its least value reads 0, its
+    // greatest 255.
     let rgb16 = &imgs[6];
-    assert_eq!(
-        rgb16.search_colour().rgb,
-        rgb16.to_dynamic().to_rgb8().into_raw()
-    );
+    let c = rgb16.search_colour();
+    assert!(c.rgb.contains(&255) && c.rgb.contains(&0));
     // Float over 1 is not clamped flat: the white point is the 99.5th percentile.
     let f = &imgs[8];
     let c = f.search_colour();
-    let distinct: std::collections::HashSet<u8> = c.rgb.iter().copied().collect();
+    let distinct: HashSet<u8> = c.rgb.iter().copied().collect();
     assert!(distinct.len() > 100, "{} levels", distinct.len());
     assert!(c.rgb.contains(&255) && c.rgb.contains(&0));
 }
@@ -538,4 +541,50 @@ fn alpha_below_half_marks_a_hole_at_every_depth() {
     assert_eq!(holes(af), [true, false, true]);
     let rgb = DeepImage::from_colour(&pattern(2, 2));
     assert!(rgb.alpha_holes().is_none());
+}
+
+/// A smooth 16-bit map that uses a few hundredths of the range (a height
+/// map) is searched with all 256 levels, not the 3 that rounding leaves; two
+/// images searched together share one view.
+#[test]
+fn a_narrow_16_bit_range_is_stretched_and_shared() {
+    use image::DynamicImage as D;
+    let gradient = |from: u16, n: u16| {
+        let v: Vec<u16> = (0..n).map(|i| from + i).collect();
+        DeepImage::from_dynamic(D::ImageLuma16(
+            ImageBuffer::from_raw(u32::from(n), 1, v).unwrap(),
+        ))
+        .unwrap()
+    };
+    let narrow = gradient(30_000, 600);
+    let rounded: HashSet<u8> = narrow
+        .to_dynamic()
+        .to_rgb8()
+        .into_raw()
+        .into_iter()
+        .collect();
+    let stretched: HashSet<u8> = narrow.search_colour().rgb.into_iter().collect();
+    assert!(rounded.len() <= 4, "{} levels", rounded.len());
+    assert_eq!(stretched.len(), 256);
+    // Together with a wider image, the same value maps to the same byte.
+    let wide = gradient(29_700, 1200);
+    let view = SearchView::of(&[&narrow, &wide]);
+    assert_eq!(
+        view,
+        SearchView::Stretched {
+            low: 29_700,
+            high: 30_899
+        }
+    );
+    let (a, b) = (narrow.search_colour_in(&view), wide.search_colour_in(&view));
+    assert_eq!(a.rgb[..3], b.rgb[300 * 3..301 * 3]);
+    assert_eq!(b.rgb[0], 0);
+    assert_eq!(b.rgb[b.rgb.len() - 1], 255);
+    // 8-bit images keep their values under any view.
+    let rgb8 = DeepImage::from_colour(&ColorImage {
+        width: 2,
+        height: 1,
+        rgb: vec![1, 2, 3, 4, 5, 6],
+    });
+    assert_eq!(rgb8.search_colour_in(&view).rgb, vec![1, 2, 3, 4, 5, 6]);
 }
