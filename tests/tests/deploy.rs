@@ -313,13 +313,20 @@ fn compose_services_are_non_root_read_only_capless_and_limited() {
                 .any(|o| o == "no-new-privileges:true"),
             "{name}: no-new-privileges"
         );
-        let limits = &svc["deploy"]["resources"]["limits"];
-        let memory = limits["memory"]
+        // Service-level limits: docker-compose 1.29 ignores deploy.resources.
+        assert!(
+            svc.get("deploy").is_none(),
+            "{name}: deploy.resources is not applied by docker-compose 1.29"
+        );
+        let memory = svc["mem_limit"]
             .as_str()
-            .unwrap_or_else(|| panic!("{name}: no deploy.resources.limits.memory"));
+            .unwrap_or_else(|| panic!("{name}: no mem_limit"));
         let memory = size(memory, false);
-        assert!(limits["cpus"].as_str().is_some(), "{name}: no cpu limit");
-        assert!(limits["pids"].as_u64().is_some(), "{name}: no pids limit");
+        assert!(svc["cpus"].as_f64().is_some(), "{name}: no cpu limit");
+        assert!(
+            svc["pids_limit"].as_u64().is_some(),
+            "{name}: no pids limit"
+        );
         let cmd = strings(&svc["command"]);
         if cmd[0] == "texsyn-worker" {
             check_worker_serve(&cmd, memory, &format!("compose service {name}"));
