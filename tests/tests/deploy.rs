@@ -732,3 +732,108 @@ fn dockerignore_keeps_secrets_and_build_output_out_and_the_build_inputs_in() {
         );
     }
 }
+
+// Kubernetes' own API types (k8s-openapi): every field of every manifest must
+// be one the API knows, at the place it is written.
+
+/// `v` with each `defaultMode`/`mode` octal literal as the number
+/// Kubernetes reads (YAML 1.1; see [`octal_mode`]).
+fn as_kubernetes_reads(v: &mut serde_yaml::Value) {
+    match v {
+        serde_yaml::Value::Mapping(m) => {
+            for (k, val) in m.iter_mut() {
+                if matches!(k.as_str(), Some("defaultMode" | "mode")) {
+                    if let serde_yaml::Value::String(s) = val {
+                        let n = u32::from_str_radix(s, 8)
+                            .unwrap_or_else(|_| panic!("mode {s} is not octal"));
+                        *val = serde_yaml::Value::Number(n.into());
+                    }
+                }
+                as_kubernetes_reads(val);
+            }
+        }
+        serde_yaml::Value::Sequence(s) => s.iter_mut().for_each(as_kubernetes_reads),
+        _ => {}
+    }
+}
+
+/// Deserialises `doc` into the API type of its kind; the paths of the
+/// fields that type does not have, or why it does not deserialise.
+fn unknown_fields(doc: &serde_yaml::Value) -> Result<Vec<String>, String> {
+    use k8s_openapi::api::{apps::v1 as apps, batch::v1 as batch, core::v1 as core};
+    fn typed<T: serde::de::DeserializeOwned>(
+        doc: &serde_yaml::Value,
+    ) -> Result<Vec<String>, String> {
+        let mut unknown = Vec::new();
+        // Optional fields show as `?` segments: the API's path has none.
+        serde_ignored::deserialize::<_, _, T>(doc.clone(), |path| {
+            unknown.push(path.to_string().replace(".?", ""))
+        })
+        .map_err(|e| e.to_string())?;
+        Ok(unknown)
+    }
+    let mut doc = doc.clone();
+    as_kubernetes_reads(&mut doc);
+    match (doc["apiVersion"].as_str(), doc["kind"].as_str()) {
+        (Some("v1"), Some("Service")) => typed::<core::Service>(&doc),
+        (Some("v1"), Some("Secret")) => typed::<core::Secret>(&doc),
+        (Some("v1"), Some("ConfigMap")) => typed::<core::ConfigMap>(&doc),
+        (Some("apps/v1"), Some("StatefulSet")) => typed::<apps::StatefulSet>(&doc),
+        (Some("apps/v1"), Some("Deployment")) => typed::<apps::Deployment>(&doc),
+        (Some("batch/v1"), Some("Job")) => typed::<batch::Job>(&doc),
+        (v, k) => Err(format!("no API type for apiVersion {v:?} kind {k:?}")),
+    }
+}
+
+#[test]
+fn kubernetes_manifests_deserialise_into_the_api_types_with_no_unknown_field() {
+    let docs = k8s_docs();
+    assert!(docs.len() >= 3, "Service, StatefulSet, Job");
+    for doc in &docs {
+        let kind = doc["kind"].as_str().unwrap_or("?");
+        let unknown = unknown_fields(doc).unwrap_or_else(|e| panic!("{kind}: {e}"));
+        assert!(unknown.is_empty(), "{kind}: unknown fields {unknown:?}");
+    }
+}
+
+/// The check is not vacuous: a misspelt field, a field at the wrong level, a
+/// wrong type and an unknown kind are each caught.
+#[test]
+fn the_kubernetes_check_catches_misspelt_misplaced_and_mistyped_fields() {
+    let docs = k8s_docs();
+    let set = docs
+        .iter()
+        .find(|d| d["kind"] == "StatefulSet")
+        .expect("a StatefulSet");
+    let pod = |d: &mut serde_yaml::Value| -> serde_yaml::Mapping {
+        d["spec"]["template"]["spec"].as_mapping().unwrap().clone()
+    };
+
+    let mut misspelt = set.clone();
+    let mut spec = pod(&mut misspelt);
+    let sc = spec.remove("securityContext").unwrap();
+    spec.insert("securityContxt".into(), sc);
+    misspelt["spec"]["template"]["spec"] = spec.into();
+    let unknown = unknown_fields(&misspelt).unwrap();
+    assert_eq!(
+        unknown,
+        vec!["spec.template.spec.securityContxt".to_string()]
+    );
+
+    let mut misplaced = set.clone();
+    let mut spec = pod(&mut misplaced);
+    spec.insert("replicas".into(), 3.into());
+    misplaced["spec"]["template"]["spec"] = spec.into();
+    assert_eq!(
+        unknown_fields(&misplaced).unwrap(),
+        vec!["spec.template.spec.replicas".to_string()]
+    );
+
+    let mut mistyped = set.clone();
+    mistyped["spec"]["replicas"] = "three".into();
+    assert!(unknown_fields(&mistyped).is_err(), "replicas: \"three\"");
+
+    let mut unknown_kind = set.clone();
+    unknown_kind["kind"] = "StatefulSett".into();
+    assert!(unknown_fields(&unknown_kind).is_err());
+}
