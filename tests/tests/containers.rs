@@ -400,6 +400,25 @@ fn compose_cluster_builds_runs_survives_a_kill_and_a_partition_and_cleans_up() {
         "the image runs as the non-root user"
     );
 
+    // What the image holds: the binaries and textures, no token, no build tree.
+    let probe = docker(&["create", &p.image]).unwrap();
+    let listing = Command::new("sh")
+        .arg("-c")
+        .arg(format!("docker export {probe} | tar -t"))
+        .output()
+        .unwrap();
+    docker(&["rm", &probe]).unwrap();
+    let files = String::from_utf8_lossy(&listing.stdout);
+    assert!(
+        files.lines().any(|f| f == "usr/local/bin/texsyn-worker"),
+        "{files}"
+    );
+    let bad: Vec<&str> = files
+        .lines()
+        .filter(|f| f.contains("token") || f.contains("target/") || f.contains(".git"))
+        .collect();
+    assert!(bad.is_empty(), "the image holds {bad:?}");
+
     // The truth: the local engine on the host.
     let host = tempfile::tempdir().unwrap();
     let (truth, local_time) = host_synth(host.path(), "local", "local", &[]);
