@@ -19,9 +19,11 @@ pub mod block;
 pub mod cleanup;
 pub mod cli;
 pub mod cluster;
+pub mod compare;
 pub mod imaging;
 pub mod launch;
 pub mod search;
+pub mod tiles;
 pub mod ycbcr;
 
 pub use block::{synthesize, Config, FillSource, Mode, Output, Position, Report, SynthMethod};

@@ -17,6 +17,8 @@ pub use cluster::{run_status, ClusterArgs, ClusterSetup, StatusArgs};
 
 mod cluster;
 mod paths;
+mod tiles;
+pub use tiles::{read_index, CompareArgs, TilesCommand};
 
 const EXAMPLES: &str = "Examples:
   texsyn extend sample.png -o out.png --size 1024x1024 --block 5 --neighbourhood 11 --levels 4 --tileable --seed 7
@@ -25,6 +27,8 @@ const EXAMPLES: &str = "Examples:
   texsyn fill tile.png --mask-from-alpha --tileable -o out.png
   texsyn synth sample.png -o out.png --size 512x512
   texsyn synth sample.png -o out.png --size 256x256 --method scanline --report run.json
+  texsyn tiles make sample.png --tiles 8 -o tiles/ && texsyn tiles assemble tiles/ --grid 8x8 -o wall.png
+  texsyn compare sample.png out.png
 
 Benchmarks are a separate binary: cargo run --release -p texsyn-bench -- paper";
 
@@ -56,6 +60,12 @@ pub enum Command {
     /// Search cluster tools.
     #[command(subcommand)]
     Cluster(ClusterCommand),
+    /// Tile sets that connect in any order (Somol–Haindl) and their assembly.
+    #[command(subcommand)]
+    Tiles(TilesCommand),
+    /// Compare two textures: JSON with S_F, S_L, colour, patch fidelity and seam scores.
+    #[command(after_help = "Example: texsyn compare sample.png out.png")]
+    Compare(CompareArgs),
 }
 
 #[derive(Subcommand, Debug)]
@@ -659,5 +669,7 @@ pub fn run(cli: Cli) -> Result<()> {
             )
         }
         Command::Cluster(ClusterCommand::Status(a)) => run_status(&a),
+        Command::Tiles(t) => tiles::run(t),
+        Command::Compare(a) => tiles::run_compare(&a),
     }
 }

@@ -1,0 +1,302 @@
+//! `texsyn tiles make|assemble` and `texsyn compare`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, ensure, Context, Result};
+use clap::{Args, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+
+use crate::compare;
+use crate::imaging::{self, ColorImage};
+use crate::tiles::{self, TileSetSettings};
+
+#[derive(Subcommand, Debug)]
+pub enum TilesCommand {
+    /// Make a set of tiles that all connect to each other (Somol–Haindl).
+    #[command(
+        after_help = "Example: texsyn tiles make sample.png --method somol --tiles 8 --tile-size 128 -o tiles/"
+    )]
+    Make(MakeArgs),
+    /// Lay a tile set out in a grid, by an index matrix or at random.
+    #[command(after_help = "Example: texsyn tiles assemble tiles/ --grid 8x8 --seed 3 -o wall.png")]
+    Assemble(AssembleArgs),
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug)]
+pub enum TileMethod {
+    /// Template tile plus patched copies (Somol and Haindl).
+    Somol,
+}
+
+#[derive(Args, Debug)]
+pub struct MakeArgs {
+    /// The sample image.
+    pub sample: PathBuf,
+    /// Output directory (created): tile_NN.png, atlas.png, tileset.json.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    #[arg(long, value_enum, default_value_t = TileMethod::Somol)]
+    pub method: TileMethod,
+    /// Number of tiles, the template included.
+    #[arg(long, default_value_t = 8)]
+    pub tiles: usize,
+    /// Tile side: the template's size is searched in [0.8·S, S] (default: half
+    /// the sample's smaller side, at most 256).
+    #[arg(long)]
+    pub tile_size: Option<usize>,
+    /// Overlap of the template's stitches and belt of the patches (default:
+    /// a tenth of the tile, as in the paper).
+    #[arg(long)]
+    pub overlap: Option<usize>,
+    /// Use this seamless tile as the template instead of searching one (e.g.
+    /// the output of `texsyn extend --tileable`).
+    #[arg(long)]
+    pub template: Option<PathBuf>,
+    /// Random candidate patch positions per tile.
+    #[arg(long, default_value_t = 48)]
+    pub candidates: usize,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// No progress bar.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct AssembleArgs {
+    /// A directory written by `texsyn tiles make`.
+    pub dir: PathBuf,
+    /// Grid size in tiles, COLSxROWS (ignored with --index).
+    #[arg(long, default_value = "4x4")]
+    pub grid: String,
+    /// Index matrix: CSV (one row per line) or JSON (an array of rows) of tile
+    /// numbers from 1.
+    #[arg(long)]
+    pub index: Option<PathBuf>,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+#[derive(Args, Debug)]
+pub struct CompareArgs {
+    /// The reference texture.
+    pub a: PathBuf,
+    /// The texture compared with it.
+    pub b: PathBuf,
+    /// B is a grid of tiles of this size (WxH): its seam score is taken at
+    /// the tile joints (default: at the wrap-around only).
+    #[arg(long)]
+    pub tile: Option<String>,
+}
+
+#[derive(Serialize)]
+struct TileSetFile<'a> {
+    method: &'static str,
+    sample: String,
+    tile_width: usize,
+    tile_height: usize,
+    settings: &'a TileSetSettings,
+    template: &'a tiles::tileset::TemplateChoice,
+    template_given: bool,
+    template_path_costs: [f64; 2],
+    template_seconds: f64,
+    tiles: Vec<TileEntry<'a>>,
+    seconds: f64,
+}
+
+#[derive(Serialize)]
+struct TileEntry<'a> {
+    number: usize,
+    file: String,
+    derived: Option<&'a tiles::tileset::DerivedTile>,
+}
+
+fn parse_pair(s: &str, what: &str) -> Result<(usize, usize)> {
+    let (a, b) = s
+        .split_once(['x', 'X'])
+        .with_context(|| format!("{what} '{s}' is not WxH, e.g. 4x4"))?;
+    let p = |v: &str| {
+        v.trim()
+            .parse::<usize>()
+            .ok()
+            .filter(|&n| n > 0)
+            .with_context(|| format!("{what} '{s}': '{v}' is not a positive number"))
+    };
+    Ok((p(a)?, p(b)?))
+}
+
+pub fn run(cmd: TilesCommand) -> Result<()> {
+    match cmd {
+        TilesCommand::Make(a) => make(&a),
+        TilesCommand::Assemble(a) => assemble(&a),
+    }
+}
+
+fn tile_path(dir: &Path, n: usize) -> PathBuf {
+    dir.join(format!("tile_{n:02}.png"))
+}
+
+fn make(a: &MakeArgs) -> Result<()> {
+    ensure!(
+        (1..=99).contains(&a.tiles),
+        "--tiles {} is out of range: give 1..=99",
+        a.tiles
+    );
+    let started = std::time::Instant::now();
+    let sample = imaging::load_color(&a.sample)?;
+    let template = a.template.as_deref().map(imaging::load_color).transpose()?;
+    let size = match (&template, a.tile_size) {
+        (Some(t), _) => t.width.min(t.height),
+        (None, Some(s)) => s,
+        (None, None) => (sample.width.min(sample.height) / 2).min(256),
+    };
+    let overlap = a.overlap.unwrap_or((size / 10).max(2));
+    let settings = TileSetSettings {
+        tiles: a.tiles,
+        min_size: (size * 4 / 5).max(2 * overlap + 1),
+        max_size: size,
+        overlap,
+        belt: overlap,
+        margin: 2,
+        candidates: a.candidates.max(1),
+        refine: 4,
+        seed: a.seed,
+    };
+    std::fs::create_dir_all(&a.output)
+        .with_context(|| format!("cannot create the output directory {}", a.output.display()))?;
+    let bar = (!a.quiet).then(|| {
+        let b = ProgressBar::new(a.tiles as u64);
+        b.set_style(
+            ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} tiles {elapsed}")
+                .unwrap()
+                .progress_chars("=> "),
+        );
+        b.set_message("tiles");
+        b
+    });
+    let set = tiles::make_tile_set(&sample, template.as_ref(), &settings, &|k| {
+        if let Some(b) = &bar {
+            b.set_position(k as u64);
+        }
+        tracing::info!(tile = k, "tile done");
+    })?;
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let mut entries = Vec::new();
+    for (k, t) in set.tiles.iter().enumerate() {
+        let path = tile_path(&a.output, k + 1);
+        imaging::save_color(&path, t)?;
+        entries.push(TileEntry {
+            number: k + 1,
+            file: path.file_name().unwrap().to_string_lossy().into_owned(),
+            derived: k.checked_sub(1).map(|d| &set.derived[d]),
+        });
+    }
+    // The atlas: all tiles in one row.
+    let index = vec![(1..=set.tiles.len()).collect::<Vec<_>>()];
+    imaging::save_color(&a.output.join("atlas.png"), &tiles::assemble(&set.tiles, &index)?)?;
+    let (tw, th) = (set.tiles[0].width, set.tiles[0].height);
+    let file = TileSetFile {
+        method: "somol",
+        sample: a.sample.display().to_string(),
+        tile_width: tw,
+        tile_height: th,
+        settings: &settings,
+        template: &set.template,
+        template_given: template.is_some(),
+        template_path_costs: set.template_path_costs,
+        template_seconds: set.template_seconds,
+        tiles: entries,
+        seconds: started.elapsed().as_secs_f64(),
+    };
+    let json = serde_json::to_vec_pretty(&file)?;
+    imaging::save_bytes(&a.output.join("tileset.json"), &json)?;
+    if !a.quiet {
+        eprintln!(
+            "wrote {} tiles of {tw}×{th} to {} ({:.2} s)",
+            set.tiles.len(),
+            a.output.display(),
+            file.seconds
+        );
+    }
+    Ok(())
+}
+
+/// Reads an index matrix: JSON (an array of arrays) or CSV (comma, semicolon
+/// or whitespace separated; `#` starts a comment).
+pub fn read_index(path: &Path) -> Result<Vec<Vec<usize>>> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read the index matrix {}", path.display()))?;
+    if text.trim_start().starts_with('[') {
+        return serde_json::from_str(&text).with_context(|| {
+            format!(
+                "{} is not a JSON array of rows of tile numbers, e.g. [[1,2],[2,1]]",
+                path.display()
+            )
+        });
+    }
+    let mut rows = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.split('#').next().unwrap_or("").trim();
+        if line.is_empty() {
+            continue;
+        }
+        let row = line
+            .split(|c: char| c == ',' || c == ';' || c.is_whitespace())
+            .filter(|s| !s.is_empty())
+            .map(|s| {
+                s.parse::<usize>().with_context(|| {
+                    format!("{} line {}: '{s}' is not a tile number", path.display(), n + 1)
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        rows.push(row);
+    }
+    Ok(rows)
+}
+
+fn assemble(a: &AssembleArgs) -> Result<()> {
+    let json = a.dir.join("tileset.json");
+    ensure!(
+        json.is_file(),
+        "{} has no tileset.json; make one with `texsyn tiles make`",
+        a.dir.display()
+    );
+    let mut set: Vec<ColorImage> = Vec::new();
+    for n in 1.. {
+        let p = tile_path(&a.dir, n);
+        if !p.is_file() {
+            break;
+        }
+        set.push(imaging::load_color(&p)?);
+    }
+    if set.is_empty() {
+        bail!("{} holds no tile_01.png", a.dir.display());
+    }
+    let index = match &a.index {
+        Some(p) => read_index(p)?,
+        None => {
+            let (cols, rows) = parse_pair(&a.grid, "--grid")?;
+            tiles::random_index(set.len(), cols, rows, a.seed)
+        }
+    };
+    let img = tiles::assemble(&set, &index)?;
+    imaging::save_color(&a.output, &img)
+}
+
+pub fn run_compare(a: &CompareArgs) -> Result<()> {
+    let (ia, ib) = (imaging::load_color(&a.a)?, imaging::load_color(&a.b)?);
+    let mut scores = compare::compare(&ia, &ib)?;
+    if let Some(t) = &a.tile {
+        let (tw, th) = parse_pair(t, "--tile")?;
+        let cols: Vec<usize> = (0..ib.width).step_by(tw).collect();
+        let rows: Vec<usize> = (0..ib.height).step_by(th).collect();
+        scores.seam = compare::seam_score(&ib, &cols, &rows);
+    }
+    println!("{}", serde_json::to_string_pretty(&scores)?);
+    Ok(())
+}

@@ -1,0 +1,353 @@
+//! Texture similarity (ARCHITECTURE §6): the objective check of every mode.
+//!
+//! - S_F, the power-spectrum similarity of Bourque and Dudek (§3.3 of their
+//!   paper): 1 for the same spectrum, invariant to circular shifts.
+//! - S_L, their Laplacian-pyramid histogram distance: 0 for the same band
+//!   statistics.
+//! - A colour term, which both of theirs ignore.
+//! - Patch fidelity: how far each patch of B is from its nearest patch of A,
+//!   found by exact search on the project's engine.
+//! - A seam score: the step across given columns and rows (tile joints, the
+//!   wrap of a tileable image) against the steps inside.
+
+use anyhow::{ensure, Result};
+use rustfft::{num_complex::Complex, FftPlanner};
+use serde::Serialize;
+use texsyn_engine::{
+    Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample, VectorSpace, Weights,
+};
+
+use crate::imaging::{ColorImage, Gray};
+use crate::ycbcr::luminance;
+
+/// The scores of B against A.
+#[derive(Clone, Debug, Serialize)]
+pub struct Scores {
+    /// Power-spectrum similarity in [0, 1]; 1 = the same spectrum.
+    pub s_f: f64,
+    /// Laplacian-pyramid histogram distance in [0, 1]; 0 = the same.
+    pub s_l: f64,
+    /// Colour distance in [0, 1]: the mean over R, G, B of the earth mover's
+    /// distance of the two histograms, in units of the full range.
+    pub colour: f64,
+    /// RMS difference per pixel (0..255 luminance) between each 7×7 patch of B
+    /// (every 3rd position) and its nearest patch of A.
+    pub patch_fidelity: f64,
+    /// Seam score of B as a tileable image: its wrap-around steps against its
+    /// interior steps (below 1: no worse than inside).
+    pub seam: SeamScore,
+}
+
+/// Compares B with A on every measure.
+pub fn compare(a: &ColorImage, b: &ColorImage) -> Result<Scores> {
+    Ok(Scores {
+        s_f: spectrum_similarity(a, b)?,
+        s_l: laplacian_distance(a, b)?,
+        colour: colour_distance(a, b),
+        patch_fidelity: patch_fidelity(a, b)?,
+        seam: seam_score(b, &[0], &[0]),
+    })
+}
+
+/// The centred `w`×`h` crop of a grey image as floats.
+fn centre_crop(g: &Gray, w: usize, h: usize) -> Vec<f64> {
+    let (x0, y0) = ((g.width - w) / 2, (g.height - h) / 2);
+    let mut v = Vec::with_capacity(w * h);
+    for y in 0..h {
+        for x in 0..w {
+            v.push(f64::from(g.get(x0 + x, y0 + y)));
+        }
+    }
+    v
+}
+
+/// The radially weighted, normalised Fourier magnitude of a `w`×`h` image:
+/// the mean is removed, each magnitude is multiplied by its frequency's
+/// radius (which flattens the 1/f fall-off of natural images, so that all
+/// scales count; DC gets 0), and the result has unit length.
+fn weighted_spectrum(v: &[f64], w: usize, h: usize) -> Vec<f64> {
+    let mean = v.iter().sum::<f64>() / v.len() as f64;
+    let mut buf: Vec<Complex<f64>> = v.iter().map(|&x| Complex::new(x - mean, 0.0)).collect();
+    let mut planner = FftPlanner::new();
+    let rows = planner.plan_fft_forward(w);
+    for row in buf.chunks_exact_mut(w) {
+        rows.process(row);
+    }
+    let cols = planner.plan_fft_forward(h);
+    let mut col = vec![Complex::new(0.0, 0.0); h];
+    for x in 0..w {
+        for y in 0..h {
+            col[y] = buf[y * w + x];
+        }
+        cols.process(&mut col);
+        for y in 0..h {
+            buf[y * w + x] = col[y];
+        }
+    }
+    let freq = |k: usize, n: usize| {
+        let k = if k > n / 2 { k as f64 - n as f64 } else { k as f64 };
+        k / n as f64
+    };
+    let mut out: Vec<f64> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let r = freq(x, w).hypot(freq(y, h));
+            buf[y * w + x].norm() * r
+        })
+        .collect();
+    let norm = out.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if norm > 0.0 {
+        out.iter_mut().for_each(|x| *x /= norm);
+    }
+    out
+}
+
+/// S_F = 1 − ‖F(A) − F(B)‖ / √2 over the weighted, normalised magnitude
+/// spectra of the luminance of the two images' common centred crop. In
+/// [0, 1]; a flat image against a flat image scores 1, against a textured
+/// one 1 − 1/√2.
+pub fn spectrum_similarity(a: &ColorImage, b: &ColorImage) -> Result<f64> {
+    let (w, h) = (a.width.min(b.width), a.height.min(b.height));
+    ensure!(w >= 8 && h >= 8, "images under 8×8 cannot be compared");
+    let (la, lb) = (luminance(a), luminance(b));
+    let fa = weighted_spectrum(&centre_crop(&la, w, h), w, h);
+    let fb = weighted_spectrum(&centre_crop(&lb, w, h), w, h);
+    let d = fa
+        .iter()
+        .zip(&fb)
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<f64>()
+        .sqrt();
+    Ok((1.0 - d / std::f64::consts::SQRT_2).clamp(0.0, 1.0))
+}
+
+/// One 5-tap binomial blur and 2× decimation (edges clamped).
+fn reduce(v: &[f64], w: usize, h: usize) -> (Vec<f64>, usize, usize) {
+    const K: [f64; 5] = [1.0, 4.0, 6.0, 4.0, 1.0];
+    let at = |x: isize, y: isize| {
+        let x = x.clamp(0, w as isize - 1) as usize;
+        let y = y.clamp(0, h as isize - 1) as usize;
+        v[y * w + x]
+    };
+    let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+    let mut out = vec![0.0; nw * nh];
+    for y in 0..nh {
+        for x in 0..nw {
+            let mut s = 0.0;
+            for (j, kj) in K.iter().enumerate() {
+                for (i, ki) in K.iter().enumerate() {
+                    s += ki * kj * at(2 * x as isize + i as isize - 2, 2 * y as isize + j as isize - 2);
+                }
+            }
+            out[y * nw + x] = s / 256.0;
+        }
+    }
+    (out, nw, nh)
+}
+
+/// Band-pass levels of a Laplacian pyramid: each level minus its reduced
+/// level brought back up (nearest neighbour).
+fn laplacian_bands(g: &Gray, levels: usize) -> Vec<Vec<f64>> {
+    let mut v: Vec<f64> = g.data.iter().map(|&x| f64::from(x)).collect();
+    let (mut w, mut h) = (g.width, g.height);
+    let mut bands = Vec::new();
+    for _ in 0..levels {
+        if w < 8 || h < 8 {
+            break;
+        }
+        let (r, rw, _) = reduce(&v, w, h);
+        let band: Vec<f64> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| v[y * w + x] - r[(y / 2) * rw + x / 2])
+            .collect();
+        bands.push(band);
+        let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+        v = r;
+        w = nw;
+        h = nh;
+    }
+    bands
+}
+
+/// Normalised histogram of a band: 64 bins over [−64, 64), outliers in the
+/// end bins.
+fn band_histogram(band: &[f64]) -> Vec<f64> {
+    let mut h = vec![0.0; 64];
+    for &x in band {
+        let b = ((x + 64.0) / 2.0).floor().clamp(0.0, 63.0) as usize;
+        h[b] += 1.0;
+    }
+    let n = band.len().max(1) as f64;
+    h.iter_mut().for_each(|x| *x /= n);
+    h
+}
+
+/// S_L = Σ_i w_i · ½ Σ |H(L_i(A)) − H(L_i(B))| over the first 4 band-pass
+/// levels, with equal weights w_i = 1/levels: in [0, 1].
+pub fn laplacian_distance(a: &ColorImage, b: &ColorImage) -> Result<f64> {
+    let (ba, bb) = (laplacian_bands(&luminance(a), 4), laplacian_bands(&luminance(b), 4));
+    let levels = ba.len().min(bb.len());
+    ensure!(levels > 0, "images under 8×8 cannot be compared");
+    let mut s = 0.0;
+    for i in 0..levels {
+        let (ha, hb) = (band_histogram(&ba[i]), band_histogram(&bb[i]));
+        s += 0.5 * ha.iter().zip(&hb).map(|(x, y)| (x - y).abs()).sum::<f64>();
+    }
+    Ok(s / levels as f64)
+}
+
+/// Mean over R, G, B of the 1-D earth mover's distance between the two
+/// images' normalised histograms, divided by 255: in [0, 1].
+pub fn colour_distance(a: &ColorImage, b: &ColorImage) -> f64 {
+    let hist = |img: &ColorImage, k: usize| {
+        let mut h = [0.0f64; 256];
+        for p in img.rgb.chunks_exact(3) {
+            h[p[k] as usize] += 1.0;
+        }
+        let n = img.len().max(1) as f64;
+        h.map(|x| x / n)
+    };
+    let mut total = 0.0;
+    for k in 0..3 {
+        let (ha, hb) = (hist(a, k), hist(b, k));
+        let (mut ca, mut cb, mut emd) = (0.0, 0.0, 0.0);
+        for v in 0..256 {
+            ca += ha[v];
+            cb += hb[v];
+            emd += (ca - cb).abs();
+        }
+        total += emd / 255.0;
+    }
+    total / 3.0
+}
+
+/// Side of the patches of [`patch_fidelity`].
+const PATCH: usize = 7;
+/// Step between the query patches of B.
+const PATCH_STEP: usize = 3;
+
+/// The 7×7 luminance window with top-left corner `(x, y)`, row by row.
+fn window(g: &Gray, x: usize, y: usize) -> Vec<u8> {
+    (0..PATCH)
+        .flat_map(|j| (0..PATCH).map(move |i| (i, j)))
+        .map(|(i, j)| g.get(x + i, y + j))
+        .collect()
+}
+
+/// RMS luminance difference per pixel between each 7×7 patch of `b` (every
+/// third position) and its nearest patch anywhere in `a`: an exact search
+/// on the engine (in-process, all cores). 0 when every patch of B occurs in A.
+pub fn patch_fidelity(a: &ColorImage, b: &ColorImage) -> Result<f64> {
+    ensure!(
+        a.width >= PATCH && a.height >= PATCH && b.width >= PATCH && b.height >= PATCH,
+        "images under {PATCH}×{PATCH} have no patch to compare"
+    );
+    let (la, lb) = (luminance(a), luminance(b));
+    let geometry = Geometry::new(PATCH, 0)?;
+    let plane = Plane::new(la.width, la.height, &la.data, None)?;
+    let sample = Sample {
+        fine: plane,
+        parent: None,
+    };
+    let positions = texsyn_engine::plane::reference_positions(&sample, &geometry)?;
+    let n = positions.len() as u64;
+    let space = VectorSpace::build_from_positions(&sample, &geometry, &positions, 0..n)?;
+    let params = Params {
+        metric: Metric::L2,
+        weights: Weights::new(1, 1)?,
+    };
+    let engine = Engine::default();
+    let mut total = 0.0f64;
+    let mut count = 0usize;
+    let ys: Vec<usize> = (0..=lb.height - PATCH).step_by(PATCH_STEP).collect();
+    let xs: Vec<usize> = (0..=lb.width - PATCH).step_by(PATCH_STEP).collect();
+    for rows in ys.chunks(16) {
+        let mut batch = QueryBatch::new(geometry.layout());
+        for &y in rows {
+            for &x in &xs {
+                batch.push_full(&window(&lb, x, y))?;
+            }
+        }
+        let hits: Vec<Hit> = engine.search_best(&space, 0..n, &batch, &params)?;
+        for h in hits {
+            total += h.dist as f64;
+            count += 1;
+        }
+    }
+    Ok((total / (count * PATCH * PATCH) as f64).sqrt())
+}
+
+/// The steps across chosen columns and rows of an image.
+#[derive(Clone, Debug, Serialize)]
+pub struct SeamScore {
+    /// Mean absolute luminance step across the chosen joints (a joint at
+    /// column c lies between columns c − 1 and c; 0 is the wrap-around).
+    pub joint_step: f64,
+    /// Median and 95th percentile of the steps between the other columns and
+    /// rows.
+    pub interior_median: f64,
+    pub interior_p95: f64,
+    /// `joint_step / interior_median`: about 1 or below when the joints do not
+    /// show.
+    pub ratio: f64,
+}
+
+/// Seam score of `img` at joint columns `cols` and joint rows `rows` (0 = the
+/// wrap-around of a tileable image): each column joint's mean absolute
+/// luminance step, against the same for every other column and row boundary.
+pub fn seam_score(img: &ColorImage, cols: &[usize], rows: &[usize]) -> SeamScore {
+    let g = luminance(img);
+    let (w, h) = (g.width, g.height);
+    let col_step = |c: usize| {
+        let (a, b) = ((c + w - 1) % w, c % w);
+        (0..h)
+            .map(|y| f64::from(g.get(a, y).abs_diff(g.get(b, y))))
+            .sum::<f64>()
+            / h as f64
+    };
+    let row_step = |r: usize| {
+        let (a, b) = ((r + h - 1) % h, r % h);
+        (0..w)
+            .map(|x| f64::from(g.get(x, a).abs_diff(g.get(x, b))))
+            .sum::<f64>()
+            / w as f64
+    };
+    let mut joints = Vec::new();
+    let mut interior = Vec::new();
+    for c in 0..w {
+        if cols.contains(&c) {
+            joints.push(col_step(c));
+        } else {
+            interior.push(col_step(c));
+        }
+    }
+    for r in 0..h {
+        if rows.contains(&r) {
+            joints.push(row_step(r));
+        } else {
+            interior.push(row_step(r));
+        }
+    }
+    interior.sort_by(f64::total_cmp);
+    let q = |p: f64| {
+        if interior.is_empty() {
+            0.0
+        } else {
+            interior[((interior.len() - 1) as f64 * p).round() as usize]
+        }
+    };
+    let joint_step = joints.iter().sum::<f64>() / joints.len().max(1) as f64;
+    let median = q(0.5);
+    SeamScore {
+        joint_step,
+        interior_median: median,
+        interior_p95: q(0.95),
+        ratio: if median > 0.0 {
+            joint_step / median
+        } else if joint_step > 0.0 {
+            f64::INFINITY
+        } else {
+            1.0
+        },
+    }
+}
