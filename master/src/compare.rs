@@ -85,7 +85,11 @@ fn weighted_spectrum(v: &[f64], w: usize, h: usize) -> Vec<f64> {
         }
     }
     let freq = |k: usize, n: usize| {
-        let k = if k > n / 2 { k as f64 - n as f64 } else { k as f64 };
+        let k = if k > n / 2 {
+            k as f64 - n as f64
+        } else {
+            k as f64
+        };
         k / n as f64
     };
     let mut out: Vec<f64> = (0..h)
@@ -136,7 +140,12 @@ fn reduce(v: &[f64], w: usize, h: usize) -> (Vec<f64>, usize, usize) {
             let mut s = 0.0;
             for (j, kj) in K.iter().enumerate() {
                 for (i, ki) in K.iter().enumerate() {
-                    s += ki * kj * at(2 * x as isize + i as isize - 2, 2 * y as isize + j as isize - 2);
+                    s += ki
+                        * kj
+                        * at(
+                            2 * x as isize + i as isize - 2,
+                            2 * y as isize + j as isize - 2,
+                        );
                 }
             }
             out[y * nw + x] = s / 256.0;
@@ -185,7 +194,10 @@ fn band_histogram(band: &[f64]) -> Vec<f64> {
 /// S_L = Σ_i w_i · ½ Σ |H(L_i(A)) − H(L_i(B))| over the first 4 band-pass
 /// levels, with equal weights w_i = 1/levels: in [0, 1].
 pub fn laplacian_distance(a: &ColorImage, b: &ColorImage) -> Result<f64> {
-    let (ba, bb) = (laplacian_bands(&luminance(a), 4), laplacian_bands(&luminance(b), 4));
+    let (ba, bb) = (
+        laplacian_bands(&luminance(a), 4),
+        laplacian_bands(&luminance(b), 4),
+    );
     let levels = ba.len().min(bb.len());
     ensure!(levels > 0, "images under 8×8 cannot be compared");
     let mut s = 0.0;

@@ -19,7 +19,9 @@ pub enum TilesCommand {
     )]
     Make(MakeArgs),
     /// Lay a tile set out in a grid, by an index matrix or at random.
-    #[command(after_help = "Example: texsyn tiles assemble tiles/ --grid 8x8 --seed 3 -o wall.png")]
+    #[command(
+        after_help = "Example: texsyn tiles assemble tiles/ --grid 8x8 --seed 3 -o wall.png"
+    )]
     Assemble(AssembleArgs),
 }
 
@@ -198,7 +200,10 @@ fn make(a: &MakeArgs) -> Result<()> {
     }
     // The atlas: all tiles in one row.
     let index = vec![(1..=set.tiles.len()).collect::<Vec<_>>()];
-    imaging::save_color(&a.output.join("atlas.png"), &tiles::assemble(&set.tiles, &index)?)?;
+    imaging::save_color(
+        &a.output.join("atlas.png"),
+        &tiles::assemble(&set.tiles, &index)?,
+    )?;
     let (tw, th) = (set.tiles[0].width, set.tiles[0].height);
     let file = TileSetFile {
         method: "somol",
@@ -250,7 +255,11 @@ pub fn read_index(path: &Path) -> Result<Vec<Vec<usize>>> {
             .filter(|s| !s.is_empty())
             .map(|s| {
                 s.parse::<usize>().with_context(|| {
-                    format!("{} line {}: '{s}' is not a tile number", path.display(), n + 1)
+                    format!(
+                        "{} line {}: '{s}' is not a tile number",
+                        path.display(),
+                        n + 1
+                    )
                 })
             })
             .collect::<Result<Vec<_>>>()?;

@@ -20,7 +20,9 @@ pub struct Rect {
 
 impl Rect {
     fn intersection_area(&self, o: &Rect) -> usize {
-        let w = (self.x + self.width).min(o.x + o.width).saturating_sub(self.x.max(o.x));
+        let w = (self.x + self.width)
+            .min(o.x + o.width)
+            .saturating_sub(self.x.max(o.x));
         let h = (self.y + self.height)
             .min(o.y + o.height)
             .saturating_sub(self.y.max(o.y));
@@ -91,7 +93,7 @@ pub fn choose_template(
     let w = overlap;
     let need = min + w;
     anyhow::ensure!(
-        min >= 2 * w + 1 && min <= max,
+        min > 2 * w && min <= max,
         "tile size range {min}..={max} with overlap {w}: the least size must be above twice the overlap and at most the greatest"
     );
     anyhow::ensure!(
@@ -453,13 +455,10 @@ pub fn make_tile_set(
     let mut derived = Vec::new();
     for k in 1..s.tiles {
         let t = std::time::Instant::now();
-        let mut rng = ChaCha8Rng::seed_from_u64(s.seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let mut rng =
+            ChaCha8Rng::seed_from_u64(s.seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
         let score = |x: usize, y: usize| {
-            let source = Rect {
-                x,
-                y,
-                ..target
-            };
+            let source = Rect { x, y, ..target };
             let (_, cuts) = patch_cuts(&tile0, sample, source, target, s.belt, &stitch_settings);
             report(source, target, &cuts).mean_path_error
         };
@@ -494,7 +493,8 @@ pub fn make_tile_set(
         // Local refinement on the ±refine neighbourhood, in steps of 2.
         let (x0, y0) = (pick.1, pick.2);
         let r = s.refine;
-        let near: Vec<(usize, usize)> = (x0.saturating_sub(r)..=(x0 + r).min(sample.width - target.width))
+        let near: Vec<(usize, usize)> = (x0.saturating_sub(r)
+            ..=(x0 + r).min(sample.width - target.width))
             .step_by(2)
             .flat_map(|x| {
                 (y0.saturating_sub(r)..=(y0 + r).min(sample.height - target.height))
@@ -574,11 +574,11 @@ pub fn assemble(tiles: &[ColorImage], index: &[Vec<usize>]) -> anyhow::Result<Co
 pub fn random_index(tiles: usize, cols: usize, rows: usize, seed: u64) -> Vec<Vec<usize>> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut m: Vec<Vec<usize>> = Vec::with_capacity(rows);
-    for r in 0..rows {
+    for _ in 0..rows {
         let mut row: Vec<usize> = Vec::with_capacity(cols);
         for c in 0..cols {
-            let left = c.checked_sub(1).map(|c| row[c]);
-            let up = r.checked_sub(1).map(|r| m[r][c]);
+            let left = row.last().copied();
+            let up = m.last().map(|above| above[c]);
             let n = loop {
                 let n = rng.random_range(1..=tiles);
                 if tiles < 3 || (Some(n) != left && Some(n) != up) {
