@@ -110,6 +110,24 @@ fn main() -> Result<()> {
     }
     let refs: Vec<&ColorImage> = row.iter().collect();
     imaging::save_color(&docs.join("synth.png"), &side_by_side(&refs))?;
+    println!("tiles: coffee beans, one tile against eight (the paper's Fig. 10 index)");
+    let beans = imaging::load_color(&tex.join("coffee_beans_color_512.png"))?;
+    let settings = texsyn::tiles::TileSetSettings {
+        tiles: 8,
+        min_size: 102,
+        max_size: 128,
+        overlap: 12,
+        belt: 12,
+        margin: 2,
+        candidates: 48,
+        refine: 4,
+        seed: 1,
+    };
+    let set = texsyn::tiles::make_tile_set(&beans, None, &settings, &|_| {})?;
+    let one = texsyn::tiles::assemble(&set.tiles, &vec![vec![1; 4]; 4])?;
+    let index = [[7, 6, 1, 5], [3, 7, 5, 8], [5, 1, 6, 2], [4, 3, 2, 3]].map(Vec::from);
+    let eight = texsyn::tiles::assemble(&set.tiles, &index)?;
+    imaging::save_color(&docs.join("tiles.png"), &side_by_side(&[&one, &eight]))?;
     println!("wrote {}", docs.display());
     Ok(())
 }

@@ -1,4 +1,4 @@
-//! Texture similarity (ARCHITECTURE §6): the objective check of every mode.
+//! Texture similarity (ARCHITECTURE §8): the objective check of every mode.
 //!
 //! - S_F, the power-spectrum similarity of Bourque and Dudek (§3.3 of their
 //!   paper): 1 for the same spectrum, invariant to circular shifts.

@@ -1,4 +1,4 @@
-//! Somol–Haindl tiles and `texsyn compare` (ARCHITECTURE §5, §6): paths
+//! Somol–Haindl tiles and `texsyn compare` (ARCHITECTURE §7, §8): paths
 //! against the optimum, stitches, tile borders, seamless grids, and the
 //! similarity measures' defining properties.
 

@@ -1,4 +1,4 @@
-//! Seamless tiles and tile sets after Somol and Haindl (ARCHITECTURE §5):
+//! Seamless tiles and tile sets after Somol and Haindl (ARCHITECTURE §7):
 //! minimum-error paths across overlaps ([`path`], §2.1), stitching with
 //! adaptive blending ([`stitch`], §2.2), and patch insertion, template tiles,
 //! derived tile sets and index-matrix tiling ([`tileset`], §2.3, §3).
