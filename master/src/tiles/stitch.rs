@@ -55,7 +55,7 @@ pub struct StitchSettings {
 impl Default for StitchSettings {
     /// The optimal path and ρ = 3. The dynamic programme is exact and, at
     /// belt widths up to about 16, faster than the oscillating search (see
-    /// ARCHITECTURE §5 for the measurements), so it is the default; the
+    /// ARCHITECTURE §7 for the measurements), so it is the default; the
     /// oscillating search remains for wide belts and anytime use.
     fn default() -> Self {
         Self {
