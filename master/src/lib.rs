@@ -26,4 +26,6 @@ pub mod search;
 pub mod tiles;
 pub mod ycbcr;
 
-pub use block::{synthesize, Config, FillSource, Mode, Output, Position, Report, SynthMethod};
+pub use block::{
+    synthesize, Config, FillSource, Mode, Output, Position, Report, Stitch, SynthMethod,
+};

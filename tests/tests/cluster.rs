@@ -949,3 +949,42 @@ fn lbg_on_the_cluster_is_exact_with_all_probes_and_runs_with_one() {
         }
     }
 }
+
+/// `--stitch path` (blocks meet the canvas along minimum-error paths) gives
+/// the same bytes on local worker processes as on the local engine: the
+/// stitch runs on the master after each exact search.
+#[test]
+fn path_stitching_on_workers_matches_the_local_engine() {
+    let dir = tempfile::tempdir().unwrap();
+    let sample = harness::texture_path("brick_color_96.png");
+    let run = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let r = std::process::Command::new(harness::binary("texsyn"))
+            .arg("synth")
+            .arg(&sample)
+            .args(["--size", "192x192", "--seed", "3", "--stitch", "path", "-q"])
+            .arg("-o")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        std::fs::read(out).unwrap()
+    };
+    let cluster = run(
+        "cluster.png",
+        &[
+            "--local-workers",
+            "2",
+            "--search",
+            "cluster,cluster,cluster",
+            "--levels",
+            "3",
+        ],
+    );
+    let local3 = run("local3.png", &["--levels", "3"]);
+    assert!(
+        cluster == local3,
+        "cluster and local differ with --stitch path"
+    );
+}

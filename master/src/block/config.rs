@@ -17,6 +17,18 @@ pub enum SynthMethod {
     Scanline,
 }
 
+/// How a copied block meets the canvas around it (ARCHITECTURE §3.12).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Stitch {
+    /// The block's square edge (the paper's copy).
+    Hard,
+    /// A minimum-error path through a band of already synthesised pixels
+    /// around the block (Somol–Haindl §2.1): the block's reference continues
+    /// up to the path.
+    Path,
+}
+
 /// Where the sample goes in an `extend` canvas.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub enum Position {
@@ -81,6 +93,8 @@ pub struct Config {
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (three times the
     /// vector size) for textures whose structure and colour disagree (§9).
     pub colour_search: bool,
+    /// How copied blocks meet their neighbours.
+    pub stitch: Stitch,
 }
 
 impl Default for Config {
@@ -98,6 +112,7 @@ impl Default for Config {
             chroma_blur: 0,
             level_samples: Vec::new(),
             colour_search: false,
+            stitch: Stitch::Hard,
         }
     }
 }

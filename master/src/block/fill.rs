@@ -11,7 +11,7 @@ use super::canvas::{set_pixel, Canvas};
 use super::neighbourhood::{candidates, query, Shape};
 use super::plan::LevelSample;
 use super::queue::BlockQueue;
-use super::{Config, Progress};
+use super::{Config, Progress, Stitch};
 use crate::search::SearchBackend;
 
 /// What filling a level reads besides the canvas it writes.
@@ -105,6 +105,11 @@ pub(super) fn fill_level(
     };
     let mut batcher = Batcher::new(canvas, ctx.cfg.batch, n);
     let rekey_radius = ((n / 2 + b / 2) / b + 1) as isize;
+    // Pixels known before the search (placed sample, kept photo, seed) are
+    // never re-stitched.
+    let stitch = (ctx.cfg.stitch == Stitch::Path && !ctx.scanline)
+        .then(|| (canvas.defined.clone(), stitch_band(b, n)))
+        .filter(|(_, o)| *o > 0);
     while !queue.is_empty() {
         batcher.choose(&mut queue, &grid);
         let mut batch = QueryBatch::new(ctx.layout);
@@ -145,6 +150,9 @@ pub(super) fn fill_level(
                 )
             })?;
             copy_block(canvas, &grid, blk, pos, ctx);
+            if let Some((known, band)) = &stitch {
+                stitch_block(canvas, &grid, blk, pos, ctx, known, *band);
+            }
             queue.remove(blk);
         }
         if !ctx.scanline {
@@ -252,6 +260,93 @@ fn copy_block(canvas: &mut Canvas, grid: &Grid, blk: u32, pos: [u32; 2], ctx: &L
             let k = y * w + x;
             if ctx.scanline || !canvas.defined[k] {
                 set_pixel(canvas, k, ctx.sample, rx + i, ry + j);
+            }
+        }
+    }
+}
+
+/// Width of the band a copied block may extend into: what its reference
+/// window still covers beyond the block (N − B)/2, at most 3 pixels.
+fn stitch_band(b: usize, n: usize) -> usize {
+    ((n - b) / 2).min(3)
+}
+
+/// Extends the block just copied into the already synthesised pixels around
+/// it, up to a minimum-error path (ARCHITECTURE §3.12; Somol–Haindl §2.1).
+/// Each side is a band `band` pixels wide and one block long outside the
+/// block; the error is the luminance difference between the canvas and the
+/// block's reference continued into the band; the optimal path over it
+/// decides, per row, how far the reference continues. Pixels are copied whole
+/// from the sample, so the copy map stays exact (no blending). A side is left
+/// as it is if any band pixel is outside the canvas, not yet defined, known
+/// before the search, or has no defined reference pixel. Bands stay inside the
+/// block's N×N window, which no other block of the batch overlaps, so the
+/// result does not depend on the order of the batch's copies.
+fn stitch_block(
+    canvas: &mut Canvas,
+    grid: &Grid,
+    blk: u32,
+    pos: [u32; 2],
+    ctx: &LevelContext,
+    known: &[bool],
+    band: usize,
+) {
+    use crate::tiles::path::{optimal, ErrorMap};
+    let b = grid.b;
+    let (bx, by) = grid.xy(blk);
+    let (x0, y0) = ((bx * b) as isize, (by * b) as isize);
+    let (rx, ry) = (
+        pos[0] as isize - (b / 2) as isize,
+        pos[1] as isize - (b / 2) as isize,
+    );
+    // The block's extent (clipped at the canvas edge).
+    let bw = b.min(grid.w - bx * b) as isize;
+    let bh = b.min(grid.h - by * b) as isize;
+    let ls = ctx.sample;
+    let (sw, sh) = (ls.lum.width as isize, ls.lum.height as isize);
+    // Per side: (offset of canonical (i, j) from the block origin), length.
+    type Offset = fn(isize, isize, isize, isize) -> (isize, isize);
+    let sides: [(Offset, isize); 4] = [
+        (|i, j, _, _| (-1 - i, j), bh),
+        (|i, j, w, _| (w + i, j), bh),
+        (|i, j, _, _| (j, -1 - i), bw),
+        (|i, j, _, h| (j, h + i), bw),
+    ];
+    for (offset, along) in sides {
+        let mut cells = Vec::with_capacity(band * along as usize);
+        let mut ok = true;
+        'scan: for j in 0..along {
+            for i in 0..band as isize {
+                let (dx, dy) = offset(i, j, bw, bh);
+                let Some(k) = canvas.index(x0 + dx, y0 + dy) else {
+                    ok = false;
+                    break 'scan;
+                };
+                let (sx, sy) = (rx + dx, ry + dy);
+                let inside = sx >= 0 && sy >= 0 && sx < sw && sy < sh;
+                let source_defined = inside
+                    && ls
+                        .defined
+                        .as_ref()
+                        .is_none_or(|d| d[(sy * sw + sx) as usize]);
+                if !canvas.defined[k] || known[k] || !source_defined {
+                    ok = false;
+                    break 'scan;
+                }
+                cells.push((k, sx as usize, sy as usize));
+            }
+        }
+        if !ok || cells.is_empty() {
+            continue;
+        }
+        let e = cells
+            .iter()
+            .map(|&(k, sx, sy)| f32::from(canvas.lum[k].abs_diff(ls.lum.get(sx, sy))))
+            .collect();
+        let path = optimal(&ErrorMap::new(band, along as usize, e));
+        for (j, &c) in path.c.iter().enumerate() {
+            for &(k, sx, sy) in &cells[j * band..=j * band + c] {
+                set_pixel(canvas, k, ls, sx, sy);
             }
         }
     }

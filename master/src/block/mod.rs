@@ -32,7 +32,7 @@ mod plan;
 pub mod pyramid;
 pub mod queue;
 
-pub use config::{Config, FillSource, Mode, Position, SynthMethod, MAX_CANVAS_PIXELS};
+pub use config::{Config, FillSource, Mode, Position, Stitch, SynthMethod, MAX_CANVAS_PIXELS};
 pub use plan::resolve_levels;
 
 /// Receives progress; the CLI draws a bar per level.

@@ -112,6 +112,11 @@ pub struct Common {
     /// Chroma blur radius at patch borders (0 = off).
     #[arg(long, default_value_t = 0)]
     pub chroma_blur: usize,
+    /// How a copied block meets the pixels around it: `hard` (the block's square
+    /// edge) or `path` (its reference continues into a band of up to 3
+    /// synthesised pixels, up to a minimum-error path; Somol–Haindl).
+    #[arg(long, value_enum, default_value_t = StitchArg::Hard)]
+    pub stitch: StitchArg,
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
     /// textures whose structure and colour disagree. Runs on this machine.
     #[arg(long)]
@@ -159,6 +164,12 @@ pub struct Common {
     pub quiet: bool,
     #[command(flatten)]
     pub cluster: ClusterArgs,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StitchArg {
+    Hard,
+    Path,
 }
 
 #[derive(ValueEnum, Debug, Clone, Copy)]
@@ -336,6 +347,10 @@ impl TryFrom<&Common> for Config {
             chroma_blur: c.chroma_blur,
             level_samples: Vec::new(),
             colour_search: c.colour_search,
+            stitch: match c.stitch {
+                StitchArg::Hard => block::Stitch::Hard,
+                StitchArg::Path => block::Stitch::Path,
+            },
         };
         cfg.validate()?;
         Ok(cfg)
