@@ -16,11 +16,9 @@
 
 mod harness;
 
-use std::io::{BufRead, BufReader};
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use harness::texture_path;
@@ -261,8 +259,7 @@ impl Drop for Project {
 /// A master container run: its log lines as they come.
 struct Master {
     child: Child,
-    lines: mpsc::Receiver<(Instant, String)>,
-    log: Vec<String>,
+    log: harness::Log,
     started: Instant,
 }
 
@@ -270,51 +267,27 @@ impl Master {
     fn start(mut cmd: Command) -> Self {
         let started = Instant::now();
         let mut child = cmd.spawn().expect("start the master container");
-        let stderr = child.stderr.take().unwrap();
-        let (tx, lines) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if tx.send((Instant::now(), line)).is_err() {
-                    break;
-                }
-            }
-        });
+        let log = harness::Log::follow(child.stderr.take().unwrap());
         Self {
             child,
-            lines,
-            log: Vec::new(),
+            log,
             started,
         }
     }
 
     fn wait_for(&mut self, timeout: Duration, f: impl Fn(&str) -> bool) -> Option<Instant> {
-        let end = Instant::now() + timeout;
-        while let Some(left) = end.checked_duration_since(Instant::now()) {
-            match self.lines.recv_timeout(left) {
-                Ok((t, line)) => {
-                    let hit = f(&line);
-                    self.log.push(line);
-                    if hit {
-                        return Some(t);
-                    }
-                }
-                Err(_) => return None,
-            }
-        }
-        None
+        self.log.wait_for(timeout, f)
     }
 
     /// Waits for the exit: its wall time; panics with the log on failure.
     fn finish(mut self, what: &str) -> Duration {
         let status = self.child.wait().unwrap();
         let took = self.started.elapsed();
-        while let Ok((_, line)) = self.lines.recv_timeout(Duration::from_secs(2)) {
-            self.log.push(line);
-        }
+        self.log.drain();
         assert!(
             status.success(),
             "{what}: the master container failed: {}",
-            self.log.join("\n")
+            self.log.text()
         );
         took
     }
@@ -465,7 +438,7 @@ fn compose_cluster_builds_runs_survives_a_kill_and_a_partition_and_cleans_up() {
     let victim = p.container("worker3");
     let mut m = p.master("kill");
     m.wait_for(Duration::from_secs(60), level_start(FAULT_LEVEL))
-        .unwrap_or_else(|| panic!("level {FAULT_LEVEL} never started: {}", m.log.join("\n")));
+        .unwrap_or_else(|| panic!("level {FAULT_LEVEL} never started: {}", m.log.text()));
     docker(&["kill", &victim]).unwrap();
     let took = m.finish("kill");
     assert!(
@@ -487,7 +460,7 @@ fn compose_cluster_builds_runs_survives_a_kill_and_a_partition_and_cleans_up() {
     let cut = p.container("worker2");
     let mut m = p.master("cut");
     m.wait_for(Duration::from_secs(60), level_start(FAULT_LEVEL))
-        .unwrap_or_else(|| panic!("level {FAULT_LEVEL} never started: {}", m.log.join("\n")));
+        .unwrap_or_else(|| panic!("level {FAULT_LEVEL} never started: {}", m.log.text()));
     docker(&["network", "disconnect", &net, &cut]).unwrap();
     let cut_at = m.started.elapsed();
     let dropped = m.wait_for(Duration::from_secs(30), |l| {
@@ -501,7 +474,7 @@ fn compose_cluster_builds_runs_survives_a_kill_and_a_partition_and_cleans_up() {
     assert!(
         dropped.is_some(),
         "the master never dropped worker2: {}",
-        m.log.join("\n")
+        m.log.text()
     );
     let took = m.finish("cut");
     assert!(

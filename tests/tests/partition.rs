@@ -15,10 +15,8 @@
 
 mod harness;
 
-use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Command, Stdio};
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use harness::{texture_path, Token, Worker};
@@ -147,8 +145,7 @@ fn search_plan(kind: &str) -> String {
 /// each one was read.
 struct Master {
     child: std::process::Child,
-    lines: mpsc::Receiver<(Instant, String)>,
-    log: Vec<String>,
+    log: harness::Log,
 }
 
 impl Master {
@@ -176,38 +173,13 @@ impl Master {
             .env("NO_COLOR", "1")
             .stderr(Stdio::piped());
         let mut child = cmd.spawn().expect("start the master");
-        let stderr = child.stderr.take().unwrap();
-        let (tx, lines) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if tx.send((Instant::now(), strip_ansi(&line))).is_err() {
-                    break;
-                }
-            }
-        });
-        Self {
-            child,
-            lines,
-            log: Vec::new(),
-        }
+        let log = harness::Log::follow(child.stderr.take().unwrap());
+        Self { child, log }
     }
 
     /// Waits (up to `timeout`) for a log line that passes `f`.
     fn wait_for(&mut self, timeout: Duration, f: impl Fn(&str) -> bool) -> Option<Instant> {
-        let end = Instant::now() + timeout;
-        while let Some(left) = end.checked_duration_since(Instant::now()) {
-            match self.lines.recv_timeout(left) {
-                Ok((t, line)) => {
-                    let hit = f(&line);
-                    self.log.push(line);
-                    if hit {
-                        return Some(t);
-                    }
-                }
-                Err(_) => return None,
-            }
-        }
-        None
+        self.log.wait_for(timeout, f)
     }
 
     /// Waits for the exit; the whole log.
@@ -222,15 +194,13 @@ impl Master {
                 let _ = self.child.wait();
                 panic!(
                     "the master did not finish within {timeout:?}: {}",
-                    self.log.join("\n")
+                    self.log.text()
                 );
             }
             std::thread::sleep(Duration::from_millis(20));
         };
-        while let Ok((_, line)) = self.lines.recv_timeout(Duration::from_secs(2)) {
-            self.log.push(line);
-        }
-        (status, self.log.join("\n"))
+        self.log.drain();
+        (status, self.log.text())
     }
 }
 
@@ -240,24 +210,6 @@ impl Drop for Master {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
-}
-
-/// `line` without terminal colour sequences (`ESC [ ... letter`).
-fn strip_ansi(line: &str) -> String {
-    let mut out = String::with_capacity(line.len());
-    let mut chars = line.chars();
-    while let Some(c) = chars.next() {
-        if c == '\u{1b}' {
-            for d in chars.by_ref() {
-                if d.is_ascii_alphabetic() {
-                    break;
-                }
-            }
-        } else {
-            out.push(c);
-        }
-    }
-    out
 }
 
 /// The log line the master prints when `level` has been cut over the workers.
@@ -439,7 +391,7 @@ fn worker_cut_off_mid_level_is_dropped_output_unchanged_and_rejoins_once_healed(
         let t = Instant::now();
         let mut m = s.master("cut");
         m.wait_for(Duration::from_secs(60), level_start(CUT_LEVEL))
-            .unwrap_or_else(|| panic!("level {CUT_LEVEL} never started: {}", m.log.join("\n")));
+            .unwrap_or_else(|| panic!("level {CUT_LEVEL} never started: {}", m.log.text()));
         std::thread::sleep(s.level_time / 10);
         cut(s.b.address.port());
         let cut_at = t.elapsed();
@@ -449,7 +401,7 @@ fn worker_cut_off_mid_level_is_dropped_output_unchanged_and_rejoins_once_healed(
         assert!(
             dropped.is_some(),
             "the master never dropped {baddr}: {}",
-            m.log.join("\n")
+            m.log.text()
         );
         let report = s.check("cut", m, t, s.fault_free * 4 + Duration::from_secs(5));
         s.assert_dropped_mid_level(&report, CUT_LEVEL);
@@ -469,13 +421,7 @@ fn worker_still_cut_off_at_a_level_start_is_skipped_there_and_rejoins_later() {
         let t = Instant::now();
         let mut m = s.master("long");
         m.wait_for(Duration::from_secs(60), level_start(CUT_LEVEL + 1))
-            .unwrap_or_else(|| {
-                panic!(
-                    "level {} never started: {}",
-                    CUT_LEVEL + 1,
-                    m.log.join("\n")
-                )
-            });
+            .unwrap_or_else(|| panic!("level {} never started: {}", CUT_LEVEL + 1, m.log.text()));
         cut(s.b.address.port());
         let cut_at = t.elapsed();
         let dropped = m.wait_for(Duration::from_secs(30), dropping(&baddr));
@@ -494,17 +440,17 @@ fn worker_still_cut_off_at_a_level_start_is_skipped_there_and_rejoins_later() {
         assert!(
             dropped.is_some(),
             "the master never dropped {baddr}: {}",
-            m.log.join("\n")
+            m.log.text()
         );
         assert!(
             unreachable.is_some(),
             "the master never tried {baddr} again while it was cut off: {}",
-            m.log.join("\n")
+            m.log.text()
         );
         assert!(
             next.is_some(),
             "level {CUT_LEVEL} never started: {}",
-            m.log.join("\n")
+            m.log.text()
         );
         // The silent worker costs a retry timeout (`--worker-timeout`, 1 s) at
         // the level start, not the 5 s connect timeout of a first contact.

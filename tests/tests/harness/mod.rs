@@ -238,3 +238,87 @@ pub fn skip(what: &str, reason: &str) {
     }
     let _ = writeln!(std::io::stderr(), "SKIP: {what}: {reason}");
 }
+
+/// A child's stderr followed line by line on a thread of its own, with the
+/// time each line was read (terminal colours stripped); the lines seen so far
+/// are kept for failure messages.
+pub struct Log {
+    lines: std::sync::mpsc::Receiver<(std::time::Instant, String)>,
+    seen: Vec<String>,
+}
+
+impl Log {
+    pub fn follow(stderr: impl std::io::Read + Send + 'static) -> Self {
+        use std::io::BufRead;
+        let (tx, lines) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in std::io::BufReader::new(stderr)
+                .lines()
+                .map_while(Result::ok)
+            {
+                if tx
+                    .send((std::time::Instant::now(), strip_ansi(&line)))
+                    .is_err()
+                {
+                    break;
+                }
+            }
+        });
+        Self {
+            lines,
+            seen: Vec::new(),
+        }
+    }
+
+    /// Waits (up to `timeout`) for a line that passes `f`; when it was read.
+    pub fn wait_for(
+        &mut self,
+        timeout: std::time::Duration,
+        f: impl Fn(&str) -> bool,
+    ) -> Option<std::time::Instant> {
+        let end = std::time::Instant::now() + timeout;
+        while let Some(left) = end.checked_duration_since(std::time::Instant::now()) {
+            match self.lines.recv_timeout(left) {
+                Ok((t, line)) => {
+                    let hit = f(&line);
+                    self.seen.push(line);
+                    if hit {
+                        return Some(t);
+                    }
+                }
+                Err(_) => return None,
+            }
+        }
+        None
+    }
+
+    /// Reads what is left (the child has exited; up to 2 s of silence).
+    pub fn drain(&mut self) {
+        while let Ok((_, line)) = self.lines.recv_timeout(std::time::Duration::from_secs(2)) {
+            self.seen.push(line);
+        }
+    }
+
+    /// The lines seen so far.
+    pub fn text(&self) -> String {
+        self.seen.join("\n")
+    }
+}
+
+/// `line` without terminal colour sequences (`ESC [ ... letter`).
+pub fn strip_ansi(line: &str) -> String {
+    let mut out = String::with_capacity(line.len());
+    let mut chars = line.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            for d in chars.by_ref() {
+                if d.is_ascii_alphabetic() {
+                    break;
+                }
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
