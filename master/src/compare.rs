@@ -31,7 +31,7 @@ pub struct Scores {
     /// distance of the two histograms, in units of the full range.
     pub colour: f64,
     /// RMS difference per pixel (0..255 luminance) between each 7×7 patch of B
-    /// (every 3rd position) and its nearest patch of A.
+    /// (every 3rd position, at most 4096 patches) and its nearest patch of A.
     pub patch_fidelity: f64,
     /// Seam score of B as a tileable image: its wrap-around steps against its
     /// interior steps (below 1: no worse than inside).
@@ -235,8 +235,10 @@ pub fn colour_distance(a: &ColorImage, b: &ColorImage) -> f64 {
 
 /// Side of the patches of [`patch_fidelity`].
 const PATCH: usize = 7;
-/// Step between the query patches of B.
+/// Least step between the query patches of B.
 const PATCH_STEP: usize = 3;
+/// Most query patches: larger images are sampled with a wider step.
+const MAX_QUERIES: usize = 4096;
 
 /// The 7×7 luminance window with top-left corner `(x, y)`, row by row.
 fn window(g: &Gray, x: usize, y: usize) -> Vec<u8> {
@@ -247,7 +249,8 @@ fn window(g: &Gray, x: usize, y: usize) -> Vec<u8> {
 }
 
 /// RMS luminance difference per pixel between each 7×7 patch of `b` (every
-/// third position) and its nearest patch anywhere in `a`: an exact search
+/// third position, or a wider step that keeps at most 4096 patches) and its
+/// nearest patch anywhere in `a`: an exact search
 /// on the engine (in-process, all cores). 0 when every patch of B occurs in A.
 pub fn patch_fidelity(a: &ColorImage, b: &ColorImage) -> Result<f64> {
     ensure!(
@@ -271,8 +274,10 @@ pub fn patch_fidelity(a: &ColorImage, b: &ColorImage) -> Result<f64> {
     let engine = Engine::default();
     let mut total = 0.0f64;
     let mut count = 0usize;
-    let ys: Vec<usize> = (0..=lb.height - PATCH).step_by(PATCH_STEP).collect();
-    let xs: Vec<usize> = (0..=lb.width - PATCH).step_by(PATCH_STEP).collect();
+    let (qw, qh) = (lb.width - PATCH + 1, lb.height - PATCH + 1);
+    let step = PATCH_STEP.max(((qw * qh) as f64 / MAX_QUERIES as f64).sqrt().ceil() as usize);
+    let ys: Vec<usize> = (0..qh).step_by(step).collect();
+    let xs: Vec<usize> = (0..qw).step_by(step).collect();
     for rows in ys.chunks(16) {
         let mut batch = QueryBatch::new(geometry.layout());
         for &y in rows {
