@@ -315,34 +315,31 @@ pub struct SeamScore {
 pub fn seam_score(img: &ColorImage, cols: &[usize], rows: &[usize]) -> SeamScore {
     let g = luminance(img);
     let (w, h) = (g.width, g.height);
-    let col_step = |c: usize| {
-        let (a, b) = ((c + w - 1) % w, c % w);
-        (0..h)
-            .map(|y| f64::from(g.get(a, y).abs_diff(g.get(b, y))))
+    // Mean absolute step across the boundary before column (or row) `k`,
+    // the last one wrapping round to the first.
+    let step = |k: usize, rows: bool| {
+        let (n, len) = if rows { (h, w) } else { (w, h) };
+        let (a, b) = ((k + n - 1) % n, k % n);
+        let at = |c: usize, t: usize| if rows { g.get(t, c) } else { g.get(c, t) };
+        (0..len)
+            .map(|t| f64::from(at(a, t).abs_diff(at(b, t))))
             .sum::<f64>()
-            / h as f64
-    };
-    let row_step = |r: usize| {
-        let (a, b) = ((r + h - 1) % h, r % h);
-        (0..w)
-            .map(|x| f64::from(g.get(x, a).abs_diff(g.get(x, b))))
-            .sum::<f64>()
-            / w as f64
+            / len as f64
     };
     let mut joints = Vec::new();
     let mut interior = Vec::new();
     for c in 0..w {
         if cols.contains(&c) {
-            joints.push(col_step(c));
+            joints.push(step(c, false));
         } else {
-            interior.push(col_step(c));
+            interior.push(step(c, false));
         }
     }
     for r in 0..h {
         if rows.contains(&r) {
-            joints.push(row_step(r));
+            joints.push(step(r, true));
         } else {
-            interior.push(row_step(r));
+            interior.push(step(r, true));
         }
     }
     interior.sort_by(f64::total_cmp);

@@ -17,13 +17,7 @@ use texsyn::tiles::{self, Rect, TileSetSettings};
 use common::texture;
 
 fn crop(img: &ColorImage, x: usize, y: usize, w: usize, h: usize) -> ColorImage {
-    let mut out = ColorImage::new(w, h);
-    for j in 0..h {
-        for i in 0..w {
-            out.set(i, j, img.get(x + i, y + j));
-        }
-    }
-    out
+    img.crop(x, y, w, h)
 }
 
 /// A real error map: two random `w`×`h` regions of a texture.
@@ -373,24 +367,40 @@ fn patch_fidelity_matches_a_scalar_reference() {
 
 /// The command line end to end: make, assemble by the paper's index matrix
 /// and at random, compare; bad input is refused with the fix named.
+/// Runs texsyn and asserts it succeeded; its output.
+fn ok(args: &[&str]) -> std::process::Output {
+    let r = common::texsyn(args);
+    assert!(
+        r.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    r
+}
+
+/// Runs texsyn and asserts it failed; its stderr.
+fn refused(args: &[&str]) -> String {
+    let r = common::texsyn(args);
+    assert!(!r.status.success(), "{args:?} succeeded");
+    String::from_utf8_lossy(&r.stderr).into_owned()
+}
+
 #[test]
 fn tiles_and_compare_on_the_command_line() {
+    use common::s;
     let dir = tempfile::tempdir().unwrap();
     let set = dir.path().join("set");
     let sample = common::assets().join("gravel_gray_500.png");
-    let r = common::texsyn(&[
+    let make = [
         "tiles",
         "make",
-        common::s(&sample),
+        s(&sample),
         "--tiles",
         "8",
         "--tile-size",
         "96",
-        "-q",
-        "-o",
-        common::s(&set),
-    ]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    ];
+    ok(&[&make[..], &["-q", "-o", s(&set)]].concat());
     for f in ["tile_01.png", "tile_08.png", "atlas.png", "tileset.json"] {
         assert!(set.join(f).is_file(), "{f}");
     }
@@ -401,40 +411,18 @@ fn tiles_and_compare_on_the_command_line() {
     let csv = dir.path().join("fig10.csv");
     std::fs::write(&csv, "7,6,1,5\n3,7,5,8\n5,1,6,2\n4,3,2,3\n").unwrap();
     let out = dir.path().join("fig10.png");
-    let r = common::texsyn(&[
-        "tiles",
-        "assemble",
-        common::s(&set),
-        "--index",
-        common::s(&csv),
-        "-o",
-        common::s(&out),
-    ]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let assemble = ["tiles", "assemble", s(&set)];
+    ok(&[&assemble[..], &["--index", s(&csv), "-o", s(&out)]].concat());
     let tw = json["tile_width"].as_u64().unwrap() as u32;
     assert_eq!(image::image_dimensions(&out).unwrap().0, 4 * tw);
     let random = dir.path().join("random.png");
-    let r = common::texsyn(&[
-        "tiles",
-        "assemble",
-        common::s(&set),
-        "--grid",
-        "3x2",
-        "--seed",
-        "4",
-        "-o",
-        common::s(&random),
-    ]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    ok(&[
+        &assemble[..],
+        &["--grid", "3x2", "--seed", "4", "-o", s(&random)],
+    ]
+    .concat());
     let tile = format!("{tw}x{}", json["tile_height"]);
-    let r = common::texsyn(&[
-        "compare",
-        common::s(&sample),
-        common::s(&out),
-        "--tile",
-        &tile,
-    ]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let r = ok(&["compare", s(&sample), s(&out), "--tile", &tile]);
     let scores: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
     for k in ["s_f", "s_l", "colour", "patch_fidelity"] {
         assert!(scores[k].as_f64().is_some(), "{k}: {scores}");
@@ -444,42 +432,12 @@ fn tiles_and_compare_on_the_command_line() {
     // Refusals: a tile number past the set, a directory without a set, a
     // malformed grid.
     std::fs::write(&csv, "1,2\n9,1\n").unwrap();
-    let r = common::texsyn(&[
-        "tiles",
-        "assemble",
-        common::s(&set),
-        "--index",
-        common::s(&csv),
-        "-o",
-        common::s(&out),
-    ]);
-    let err = String::from_utf8_lossy(&r.stderr);
-    assert!(
-        !r.status.success() && err.contains("tile 9") && err.contains("1..=8"),
-        "{err}"
-    );
-    let r = common::texsyn(&[
-        "tiles",
-        "assemble",
-        common::s(dir.path()),
-        "-o",
-        common::s(&out),
-    ]);
-    let err = String::from_utf8_lossy(&r.stderr);
-    assert!(
-        !r.status.success() && err.contains("texsyn tiles make"),
-        "{err}"
-    );
-    let r = common::texsyn(&[
-        "tiles",
-        "assemble",
-        common::s(&set),
-        "--grid",
-        "3by2",
-        "-o",
-        common::s(&out),
-    ]);
-    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("WxH"));
+    let err = refused(&[&assemble[..], &["--index", s(&csv), "-o", s(&out)]].concat());
+    assert!(err.contains("tile 9") && err.contains("1..=8"), "{err}");
+    let err = refused(&["tiles", "assemble", s(dir.path()), "-o", s(&out)]);
+    assert!(err.contains("texsyn tiles make"), "{err}");
+    let err = refused(&[&assemble[..], &["--grid", "3by2", "-o", s(&out)]].concat());
+    assert!(err.contains("WxH"), "{err}");
 }
 
 /// `--stitch path` in the block method: the same output on 1 and 2

@@ -100,6 +100,22 @@ impl ColorImage {
         let i = (y * self.width + x) * 3;
         self.rgb[i..i + 3].copy_from_slice(&p);
     }
+
+    /// The `width`×`height` rectangle with top-left corner (x, y). Panics if
+    /// it does not lie inside the image.
+    pub fn crop(&self, x: usize, y: usize, width: usize, height: usize) -> Self {
+        assert!(
+            x + width <= self.width && y + height <= self.height,
+            "crop outside the image"
+        );
+        let mut out = Self::new(width, height);
+        for j in 0..height {
+            let s = ((y + j) * self.width + x) * 3;
+            out.rgb[j * width * 3..(j + 1) * width * 3]
+                .copy_from_slice(&self.rgb[s..s + width * 3]);
+        }
+        out
+    }
 }
 
 /// An 8-bit single-channel image, row-major.

@@ -16,8 +16,18 @@ pub struct ErrorMap {
     pub w: usize,
     pub h: usize,
     pub e: Vec<f32>,
+    /// The largest error of the map (0 for an empty or flat one).
+    pub max: f32,
     /// Per row, the prefix sums of `e` (`w + 1` entries per row).
     prefix: Vec<f64>,
+}
+
+/// Euclidean distance of two RGB colours.
+pub fn rgb_distance(a: [u8; 3], b: [u8; 3]) -> f32 {
+    let d: i32 = (0..3)
+        .map(|k| (i32::from(a[k]) - i32::from(b[k])).pow(2))
+        .sum();
+    (d as f32).sqrt()
 }
 
 impl ErrorMap {
@@ -33,7 +43,14 @@ impl ErrorMap {
                 prefix.push(s);
             }
         }
-        Self { w, h, e, prefix }
+        let max = e.iter().copied().fold(0.0f32, f32::max);
+        Self {
+            w,
+            h,
+            e,
+            max,
+            prefix,
+        }
     }
 
     /// The error map of two RGB regions given pixel by pixel in canonical
@@ -42,15 +59,7 @@ impl ErrorMap {
         let e = r1
             .iter()
             .zip(r2)
-            .map(|(a, b)| {
-                let d: i32 = (0..3)
-                    .map(|k| {
-                        let d = i32::from(a[k]) - i32::from(b[k]);
-                        d * d
-                    })
-                    .sum();
-                (d as f32).sqrt()
-            })
+            .map(|(a, b)| rgb_distance(*a, *b))
             .collect();
         Self::new(w, h, e)
     }

@@ -109,7 +109,7 @@ pub fn find_cut(
 /// farther than ρ from the path is affected, as the paper says of ρ. A path
 /// pixel itself (d = 0) takes R2's colour; where the error is 0, α = 1.
 pub fn blend_weight(cut: &Cut, rho: f32, i: usize, j: usize) -> (f32, (usize, usize)) {
-    let top = cut.map.e.iter().copied().fold(0.0f32, f32::max);
+    let top = cut.map.max;
     if rho <= 0.0 || top <= 0.0 {
         return (1.0, (i, j));
     }

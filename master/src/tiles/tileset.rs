@@ -6,6 +6,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::path::rgb_distance;
 use super::stitch::{self, Belt, Cut, Side, StitchSettings};
 use crate::imaging::ColorImage;
 
@@ -31,42 +32,33 @@ impl Rect {
 }
 
 fn crop(img: &ColorImage, r: Rect) -> ColorImage {
-    let mut out = ColorImage::new(r.width, r.height);
-    for y in 0..r.height {
-        let s = ((r.y + y) * img.width + r.x) * 3;
-        out.rgb[y * r.width * 3..(y + 1) * r.width * 3]
-            .copy_from_slice(&img.rgb[s..s + r.width * 3]);
-    }
-    out
+    img.crop(r.x, r.y, r.width, r.height)
 }
 
-/// Mean Euclidean RGB distance between the `w`-wide column strips at `a` and
-/// `b` over rows `rows` (the paper's criterion of visual consistency, §3.1).
-fn column_strip_error(img: &ColorImage, a: usize, b: usize, w: usize, rows: (usize, usize)) -> f64 {
+/// Mean Euclidean RGB distance between two `w`-wide strips that start at `a`
+/// and `b` across the image and span `along` (the paper's criterion of visual
+/// consistency, §3.1): column strips, or row strips with `rows`.
+fn strip_error(
+    img: &ColorImage,
+    rows: bool,
+    (a, b): (usize, usize),
+    w: usize,
+    along: (usize, usize),
+) -> f64 {
+    let at = |across: usize, t: usize| {
+        if rows {
+            img.get(t, across)
+        } else {
+            img.get(across, t)
+        }
+    };
     let mut sum = 0.0;
-    for y in rows.0..rows.1 {
+    for t in along.0..along.1 {
         for i in 0..w {
-            sum += dist(img.get(a + i, y), img.get(b + i, y));
+            sum += f64::from(rgb_distance(at(a + i, t), at(b + i, t)));
         }
     }
-    sum / (w * (rows.1 - rows.0)) as f64
-}
-
-fn row_strip_error(img: &ColorImage, a: usize, b: usize, w: usize, cols: (usize, usize)) -> f64 {
-    let mut sum = 0.0;
-    for i in 0..w {
-        for x in cols.0..cols.1 {
-            sum += dist(img.get(x, a + i), img.get(x, b + i));
-        }
-    }
-    sum / (w * (cols.1 - cols.0)) as f64
-}
-
-fn dist(a: [u8; 3], b: [u8; 3]) -> f64 {
-    let d: i32 = (0..3)
-        .map(|k| (i32::from(a[k]) - i32::from(b[k])).pow(2))
-        .sum();
-    f64::from(d).sqrt()
+    sum / (w * (along.1 - along.0)) as f64
 }
 
 /// Where the template tile comes from and how well its borders matched.
@@ -115,11 +107,11 @@ pub fn choose_template(
             .collect()
     };
     let (he, x, width) = best(cands(sample.width), &|x, s| {
-        column_strip_error(sample, x, x + s, w, (0, sample.height))
+        strip_error(sample, false, (x, x + s), w, (0, sample.height))
     });
     let cols = (x, x + width + w);
     let (ve, y, height) = best(cands(sample.height), &|y, s| {
-        row_strip_error(sample, y, y + s, w, cols)
+        strip_error(sample, true, (y, y + s), w, cols)
     });
     Ok(TemplateChoice {
         rect: Rect {
@@ -260,6 +252,15 @@ fn canonical(belt: &Belt, x: usize, y: usize) -> Option<(usize, usize)> {
     (i < w && j < l).then_some((i, j))
 }
 
+/// The patch's pixel at tile coordinates (x, y) inside `target`.
+fn patch_pixels(
+    sample: &ColorImage,
+    source: Rect,
+    target: Rect,
+) -> impl Fn(usize, usize) -> [u8; 3] + Copy + '_ {
+    move |x, y| sample.get(source.x + x - target.x, source.y + y - target.y)
+}
+
 /// The four side cuts of a patch of `source` placed at `target` in `tile`.
 fn patch_cuts(
     tile: &ColorImage,
@@ -270,7 +271,7 @@ fn patch_cuts(
     settings: &StitchSettings,
 ) -> ([Belt; 4], Vec<Cut>) {
     let belts = side_belts(target, belt);
-    let r1 = |x: usize, y: usize| sample.get(source.x + x - target.x, source.y + y - target.y);
+    let r1 = patch_pixels(sample, source, target);
     let cuts = belts
         .iter()
         .map(|b| stitch::find_cut(b, r1, |x, y| tile.get(x, y), settings))
@@ -305,7 +306,7 @@ pub fn insert_patch(
     settings: &StitchSettings,
 ) -> PatchReport {
     let (belts, cuts) = patch_cuts(tile, sample, source, target, belt, settings);
-    let r1 = |x: usize, y: usize| sample.get(source.x + x - target.x, source.y + y - target.y);
+    let r1 = patch_pixels(sample, source, target);
     let mut out = tile.clone();
     for y in target.y..target.y + target.height {
         for x in target.x..target.x + target.width {
