@@ -51,6 +51,11 @@ impl PixelFormat {
         }
     }
 
+    /// Channels that carry colour (all but alpha).
+    pub fn colour_channels(self) -> usize {
+        self.channel_count() - usize::from(self.has_alpha())
+    }
+
     pub fn bytes_per_sample(self) -> usize {
         match self.depth {
             Depth::U8 => 1,
@@ -231,8 +236,7 @@ impl DeepImage {
     /// (the stored colour is used as it is) and grey is replicated.
     pub fn search_colour_in(&self, view: &SearchView) -> ColorImage {
         let (width, height) = (self.width, self.height);
-        let step = self.format.channel_count();
-        let colour = step - usize::from(self.format.has_alpha());
+        let (step, colour) = (self.format.channel_count(), self.format.colour_channels());
         let rgb = match (self.format.depth, view) {
             (Depth::U8, _) if self.format == PixelFormat::RGB8 => self.bytes.clone(),
             (Depth::U8, _) | (_, SearchView::Rounded) => self.to_dynamic().to_rgb8().into_raw(),
@@ -382,32 +386,24 @@ impl SearchView {
     /// deepest format, over the colour samples of all of them (alpha is not
     /// counted).
     pub fn of(images: &[&DeepImage]) -> Self {
-        let colour_samples = |img: &&DeepImage| {
-            let step = img.format.channel_count();
-            let colour = step - usize::from(img.format.has_alpha());
-            (step, colour)
-        };
         if images.iter().any(|i| i.format.depth == Depth::F32) {
-            let mut values: Vec<f32> = images
-                .iter()
-                .flat_map(|img| {
-                    let (step, colour) = colour_samples(img);
-                    let f = match img.format.depth {
-                        Depth::F32 => f32s(&img.bytes),
-                        _ => f32s(
-                            &img.converted(PixelFormat {
-                                depth: Depth::F32,
-                                channels: img.format.channels,
-                            })
-                            .bytes,
-                        ),
-                    };
-                    f.chunks_exact(step)
-                        .flat_map(|p| p[..colour].to_vec())
-                        .collect::<Vec<_>>()
-                })
-                .filter(|v| v.is_finite())
-                .collect();
+            let mut values: Vec<f32> = Vec::new();
+            for img in images {
+                let f = match img.format.depth {
+                    Depth::F32 => f32s(&img.bytes),
+                    _ => f32s(
+                        &img.converted(PixelFormat {
+                            depth: Depth::F32,
+                            channels: img.format.channels,
+                        })
+                        .bytes,
+                    ),
+                };
+                let (step, colour) = (img.format.channel_count(), img.format.colour_channels());
+                for p in f.chunks_exact(step) {
+                    values.extend(p[..colour].iter().copied().filter(|v| v.is_finite()));
+                }
+            }
             let white = if values.is_empty() {
                 1.0
             } else {
@@ -423,7 +419,7 @@ impl SearchView {
         }
         let mut range: Option<(u16, u16)> = None;
         for img in images.iter().filter(|i| i.format.depth == Depth::U16) {
-            let (step, colour) = colour_samples(img);
+            let (step, colour) = (img.format.channel_count(), img.format.colour_channels());
             for p in u16s(&img.bytes).chunks_exact(step) {
                 for &v in &p[..colour] {
                     range = Some(match range {
