@@ -121,6 +121,7 @@ fn main() -> Result<()> {
         margin: 2,
         candidates: 48,
         refine: 4,
+        path: Default::default(),
         seed: 1,
     };
     let set = texsyn::tiles::make_tile_set(&beans, None, &settings, &|_| {})?;

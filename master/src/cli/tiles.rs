@@ -9,7 +9,7 @@ use serde::Serialize;
 
 use crate::compare;
 use crate::imaging::{self, ColorImage};
-use crate::tiles::{self, TileSetSettings};
+use crate::tiles::{self, PathSearch, TileSetSettings};
 
 #[derive(Subcommand, Debug)]
 pub enum TilesCommand {
@@ -58,6 +58,10 @@ pub struct MakeArgs {
     /// Random candidate patch positions per tile.
     #[arg(long, default_value_t = 48)]
     pub candidates: usize,
+    /// How each stitch finds its path: the oscillating search, or the exact
+    /// optimum (slower at wide overlaps).
+    #[arg(long, value_enum, default_value_t = PathSearch::Oscillating)]
+    pub path: PathSearch,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// No progress bar.
@@ -165,6 +169,7 @@ fn make(a: &MakeArgs) -> Result<()> {
         margin: 2,
         candidates: a.candidates.max(1),
         refine: 4,
+        path: a.path,
         seed: a.seed,
     };
     std::fs::create_dir_all(&a.output)

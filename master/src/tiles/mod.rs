@@ -8,6 +8,6 @@ pub mod stitch;
 pub mod tileset;
 
 pub use tileset::{
-    assemble, choose_template, insert_patch, make_template, make_tile_set, random_index, Rect,
-    TileSet, TileSetSettings,
+    assemble, choose_template, insert_patch, make_template, make_tile_set, random_index,
+    PathSearch, Rect, TileSet, TileSetSettings,
 };
