@@ -240,9 +240,10 @@ pub fn scan_line_tiling(
     let mut out: Vec<Vec<usize>> = Vec::with_capacity(rows);
     for y in 0..rows {
         let mut row: Vec<usize> = Vec::with_capacity(cols);
+        let above = out.last().cloned();
         for x in 0..cols {
             let left = row.last().map(|&k| set.tiles[k]);
-            let top = (y > 0).then(|| set.tiles[out[y - 1][x]]);
+            let top = above.as_ref().map(|a| set.tiles[a[x]]);
             let want = [
                 left.map(|l| l[1]).or(top.map(|t| t[2])),
                 top.map(|t| t[3]),
