@@ -1,0 +1,267 @@
+//! Joining an intermediate ω-tile with its matching patch (Dong, Zhou and
+//! Paul §3, after Kwatra et al.'s graph cuts): a minimum cut between the two
+//! inside a circle, so the tile's border ring stays the tile's, then Poisson
+//! smoothing (Pérez et al.) of the seams that remain.
+
+use pathfinding::directed::edmonds_karp::edmonds_karp_sparse;
+
+use crate::imaging::ColorImage;
+
+use super::path::rgb_distance;
+
+/// A minimum s–t cut: its value and, per node, whether it is on the source's
+/// side. `edges` are directed `(from, to, capacity)`; give both directions for
+/// an undirected edge. The maximum flow comes from the `pathfinding` crate
+/// (Edmonds–Karp); the source side is what the residual graph still reaches.
+pub fn min_cut(
+    nodes: usize,
+    source: usize,
+    sink: usize,
+    edges: &[(usize, usize, i64)],
+) -> (i64, Vec<bool>) {
+    // Parallel edges add up (the crate keeps one capacity per pair).
+    let mut residual: std::collections::BTreeMap<(usize, usize), i64> =
+        std::collections::BTreeMap::new();
+    for &(a, b, c) in edges {
+        *residual.entry((a, b)).or_default() += c;
+    }
+    let vertices: Vec<usize> = (0..nodes).collect();
+    let caps = residual.iter().map(|(&ab, &c)| (ab, c));
+    let (flows, value, _) = edmonds_karp_sparse(&vertices, &source, &sink, caps);
+    // Residual capacities: capacity less flow forwards, plus flow backwards.
+    for &((a, b), f) in &flows {
+        *residual.entry((a, b)).or_default() -= f;
+        *residual.entry((b, a)).or_default() += f;
+    }
+    let mut adjacent = vec![Vec::new(); nodes];
+    for (&(a, b), &r) in &residual {
+        if r > 0 {
+            adjacent[a].push(b);
+        }
+    }
+    let mut side = vec![false; nodes];
+    side[source] = true;
+    let mut todo = vec![source];
+    while let Some(a) = todo.pop() {
+        for &b in &adjacent[a] {
+            if !side[b] {
+                side[b] = true;
+                todo.push(b);
+            }
+        }
+    }
+    (value, side)
+}
+
+/// What the merge of a tile with its matching patch gave.
+#[derive(Clone, Debug)]
+pub struct Merge {
+    pub image: ColorImage,
+    /// Per pixel, whether it came from the matching patch.
+    pub from_patch: Vec<bool>,
+    /// The cut's cost (the sum of the seam's edge weights, ×16).
+    pub cut: i64,
+}
+
+/// Merges `patch` into the intermediate `tile` (both T×T, quarters meeting at
+/// the centre) along a minimum-cost seam.
+///
+/// Pixels outside the tile's inscribed circle are tied to the tile (the
+/// circle constraint: the border ring, which neighbouring tiles continue,
+/// never changes); a disc at the centre and the quarter junctions out to
+/// two thirds of the radius are tied to the patch, so the junction cross is
+/// covered. Between them, the edge of neighbours `s`, `t` costs
+/// `‖A(s) − B(s)‖ + ‖A(t) − B(t)‖` (Kwatra et al.), and the cheapest cut
+/// decides which pixels take the patch.
+pub fn merge(tile: &ColorImage, patch: &ColorImage) -> Merge {
+    let (w, h) = (tile.width, tile.height);
+    debug_assert_eq!((w, h), (patch.width, patch.height));
+    let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
+    let radius = cx.min(cy) - 1.0;
+    let n = w * h;
+    let (source, sink) = (n, n + 1);
+    let err: Vec<f32> = (0..n)
+        .map(|p| rgb_distance(tile.get(p % w, p / w), patch.get(p % w, p / w)))
+        .collect();
+    let big = i64::MAX / 4;
+    let mut edges = Vec::with_capacity(6 * n);
+    for y in 0..h {
+        for x in 0..w {
+            let p = y * w + x;
+            let (dx, dy) = (x as f64 + 0.5 - cx, y as f64 + 0.5 - cy);
+            let d = (dx * dx + dy * dy).sqrt();
+            let on_cross = dx.abs() <= 1.0 || dy.abs() <= 1.0;
+            if d > radius {
+                edges.push((source, p, big));
+            } else if d <= radius / 4.0 || (on_cross && d <= radius * 2.0 / 3.0) {
+                edges.push((p, sink, big));
+            }
+            for q in [(x + 1 < w).then(|| p + 1), (y + 1 < h).then(|| p + w)]
+                .into_iter()
+                .flatten()
+            {
+                let c = ((err[p] + err[q]) * 16.0).round() as i64 + 1;
+                edges.push((p, q, c));
+                edges.push((q, p, c));
+            }
+        }
+    }
+    let (cut, side) = min_cut(n + 2, source, sink, &edges);
+    let from_patch: Vec<bool> = side[..n].iter().map(|&s| !s).collect();
+    let mut image = tile.clone();
+    for (p, &b) in from_patch.iter().enumerate() {
+        if b {
+            image.set(p % w, p / w, patch.get(p % w, p / w));
+        }
+    }
+    Merge {
+        image,
+        from_patch,
+        cut,
+    }
+}
+
+/// Poisson smoothing of seams (Pérez et al.): inside the 1-pixel border ring,
+/// which stays fixed, solve for the image whose gradients are the given
+/// image's, except across the `seam` pairs, where the gradient is taken as 0,
+/// so the step there is spread over its surroundings. `seam(p, q)` says
+/// whether neighbours `p` and `q` (pixel indices) lie on two sides of a seam.
+/// Gauss–Seidel with over-relaxation, `iterations` sweeps.
+pub fn poisson_smooth(
+    img: &ColorImage,
+    seam: impl Fn(usize, usize) -> bool,
+    iterations: usize,
+) -> ColorImage {
+    let (w, h) = (img.width, img.height);
+    if w < 3 || h < 3 {
+        return img.clone();
+    }
+    let mut out = img.clone();
+    for ch in 0..3 {
+        let g: Vec<f32> = (0..w * h)
+            .map(|p| f32::from(img.get(p % w, p / w)[ch]))
+            .collect();
+        let mut f = g.clone();
+        let omega = 1.8f32;
+        for _ in 0..iterations {
+            for y in 1..h - 1 {
+                for x in 1..w - 1 {
+                    let p = y * w + x;
+                    let mut sum = 0.0;
+                    for q in [p - 1, p + 1, p - w, p + w] {
+                        let v = if seam(p, q) { 0.0 } else { g[p] - g[q] };
+                        sum += f[q] + v;
+                    }
+                    f[p] += omega * (sum / 4.0 - f[p]);
+                }
+            }
+        }
+        for y in 1..h - 1 {
+            for x in 1..w - 1 {
+                let mut c = out.get(x, y);
+                c[ch] = f[y * w + x].round().clamp(0.0, 255.0) as u8;
+                out.set(x, y, c);
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The least cut by trying every split of the inner nodes.
+    fn brute_force(nodes: usize, s: usize, t: usize, edges: &[(usize, usize, i64)]) -> i64 {
+        let inner: Vec<usize> = (0..nodes).filter(|&v| v != s && v != t).collect();
+        (0..1u32 << inner.len())
+            .map(|mask| {
+                let mut side = vec![false; nodes];
+                side[s] = true;
+                for (k, &v) in inner.iter().enumerate() {
+                    side[v] = mask >> k & 1 == 1;
+                }
+                edges
+                    .iter()
+                    .filter(|&&(a, b, _)| side[a] && !side[b])
+                    .map(|&(_, _, c)| c)
+                    .sum::<i64>()
+            })
+            .min()
+            .unwrap()
+    }
+
+    #[test]
+    fn the_cut_equals_a_brute_force_minimum_cut_on_small_graphs() {
+        let mut seed = 17u64;
+        let mut next = move |m: u64| {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 33) % m
+        };
+        for _ in 0..300 {
+            let nodes = 2 + next(9) as usize;
+            let mut edges = Vec::new();
+            for _ in 0..next(25) {
+                let (a, b) = (next(nodes as u64) as usize, next(nodes as u64) as usize);
+                if a != b {
+                    edges.push((a, b, next(20) as i64));
+                }
+            }
+            let (value, side) = min_cut(nodes, 0, nodes - 1, &edges);
+            assert_eq!(value, brute_force(nodes, 0, nodes - 1, &edges), "{edges:?}");
+            // The side found is a cut of that value.
+            assert!(side[0] && !side[nodes - 1]);
+            let across: i64 = edges
+                .iter()
+                .filter(|&&(a, b, _)| side[a] && !side[b])
+                .map(|&(_, _, c)| c)
+                .sum();
+            assert_eq!(across, value);
+        }
+    }
+
+    #[test]
+    fn the_merge_keeps_the_border_ring_and_covers_the_centre() {
+        let (w, h) = (24, 24);
+        let tile =
+            ColorImage::from_vec(w, h, (0..w * h * 3).map(|i| (i * 7 % 251) as u8).collect());
+        let patch =
+            ColorImage::from_vec(w, h, (0..w * h * 3).map(|i| (i * 13 % 241) as u8).collect());
+        let m = merge(&tile, &patch);
+        for y in 0..h {
+            for x in 0..w {
+                let (dx, dy) = (x as f64 + 0.5 - 12.0, y as f64 + 0.5 - 12.0);
+                let d = (dx * dx + dy * dy).sqrt();
+                if d > 11.0 {
+                    assert_eq!(m.image.get(x, y), tile.get(x, y), "ring ({x}, {y})");
+                }
+                if d <= 11.0 / 4.0 {
+                    assert_eq!(m.image.get(x, y), patch.get(x, y), "centre ({x}, {y})");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn poisson_smoothing_keeps_the_border_and_lowers_the_seam_step() {
+        let (w, h) = (20, 12);
+        // Two flat halves with a step of 100 between columns 9 and 10.
+        let img = ColorImage::from_vec(
+            w,
+            h,
+            (0..w * h)
+                .flat_map(|p| [if p % w < 10 { 50 } else { 150 }; 3])
+                .collect(),
+        );
+        let seam = |p: usize, q: usize| (p % w < 10) != (q % w < 10);
+        let out = poisson_smooth(&img, seam, 300);
+        for x in 0..w {
+            assert_eq!(out.get(x, 0), img.get(x, 0));
+            assert_eq!(out.get(x, h - 1), img.get(x, h - 1));
+        }
+        let step = |i: &ColorImage| i32::from(i.get(10, 6)[0]) - i32::from(i.get(9, 6)[0]);
+        assert!(step(&out) < 20, "step {} after smoothing", step(&out));
+    }
+}
