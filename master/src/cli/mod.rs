@@ -394,7 +394,7 @@ impl Progress for Bars {
     }
 }
 
-fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
+pub(crate) fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
     let mut b = rayon::ThreadPoolBuilder::new();
     if let Some(t) = threads {
         ensure!((1..=1024).contains(&t), "--threads {t} must be in 1..=1024");

@@ -17,7 +17,7 @@ pub enum TilesCommand {
     #[command(
         after_help = "Example: texsyn tiles make sample.png --method somol --tiles 8 --tile-size 128 -o tiles/"
     )]
-    Make(MakeArgs),
+    Make(Box<MakeArgs>),
     /// Lay a tile set out in a grid, by an index matrix or at random.
     #[command(
         after_help = "Example: texsyn tiles assemble tiles/ --grid 8x8 --seed 3 -o wall.png"
@@ -29,6 +29,9 @@ pub enum TilesCommand {
 pub enum TileMethod {
     /// Template tile plus patched copies (Somol and Haindl).
     Somol,
+    /// ω-tiles from sample patches chosen by an immune search (Dong, Zhou and
+    /// Paul).
+    Omega,
 }
 
 #[derive(Args, Debug)]
@@ -64,6 +67,24 @@ pub struct MakeArgs {
     pub path: PathSearch,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// ω-tiles: the set, 8 (4 patches), 17 (5) or 38 (6).
+    #[arg(long, default_value_t = 38)]
+    pub set: usize,
+    /// ω-tiles: antibodies in the immune search (N_p).
+    #[arg(long, default_value_t = 40)]
+    pub population: usize,
+    /// ω-tiles: generations at most (N_g).
+    #[arg(long, default_value_t = 50)]
+    pub generations: usize,
+    /// ω-tiles: random patch sets whose affinity `ais.json` reports beside the
+    /// search's (0 = none).
+    #[arg(long, default_value_t = 100)]
+    pub baseline: usize,
+    /// Search threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    #[command(flatten)]
+    pub cluster: super::ClusterArgs,
     /// No progress bar.
     #[arg(short, long)]
     pub quiet: bool,
@@ -146,6 +167,9 @@ fn tile_path(dir: &Path, n: usize) -> PathBuf {
 }
 
 fn make(a: &MakeArgs) -> Result<()> {
+    if matches!(a.method, TileMethod::Omega) {
+        return super::thread_pool(a.threads)?.install(|| make_omega(a));
+    }
     ensure!(
         (1..=99).contains(&a.tiles),
         "--tiles {} is out of range: give 1..=99",
@@ -236,6 +260,203 @@ fn make(a: &MakeArgs) -> Result<()> {
     Ok(())
 }
 
+#[derive(Serialize)]
+struct OmegaSetFile<'a> {
+    method: &'static str,
+    sample: String,
+    tile_width: usize,
+    tile_height: usize,
+    /// Corner colours of each tile (top-left, top-right, bottom-left,
+    /// bottom-right), e.g. "BYYR".
+    set: Vec<String>,
+    /// The sample patch of each colour (top-left corner), R, G, B, Y, C, M.
+    patches: &'a [tiles::ais::Gene],
+    tiles: Vec<OmegaEntry<'a>>,
+    search_seconds: f64,
+    build_seconds: f64,
+    seconds: f64,
+}
+
+#[derive(Serialize)]
+struct OmegaEntry<'a> {
+    number: usize,
+    file: String,
+    #[serde(flatten)]
+    tile: &'a tiles::ais::OmegaTile,
+}
+
+#[derive(Serialize)]
+struct AisFile<'a> {
+    settings: &'a tiles::ais::AisSettings,
+    evaluation_steps: usize,
+    evaluation_side: usize,
+    result: &'a tiles::ais::AisResult,
+    random_mean_f: Option<f64>,
+    random_best_f: Option<f64>,
+    random_sets: usize,
+}
+
+fn make_omega(a: &MakeArgs) -> Result<()> {
+    use tiles::ais;
+    let started = std::time::Instant::now();
+    ensure!(
+        a.template.is_none(),
+        "--template belongs to --method somol; ω-tiles are built from sample patches"
+    );
+    let set = tiles::omega::OmegaSet::of_size(a.set)?;
+    let sample = imaging::load_color(&a.sample)?;
+    let size = a
+        .tile_size
+        .unwrap_or((sample.width.min(sample.height) * 5 / 8) & !1);
+    let mut evaluator = ais::Evaluator::new(&set, &sample, size)?;
+    let engine = texsyn_engine::Engine::default();
+    let cluster = a.cluster.setup()?;
+    let (options, _local_workers, _ssh_workers) = match cluster {
+        Some(c) => (Some(c.options), c.local, c.ssh),
+        None => (None, None, None),
+    };
+    let mut backend: Box<dyn crate::search::SearchBackend> = match options {
+        Some(o) => Box::new(crate::cluster::ClusterSearch::connect(o, engine)?),
+        None => Box::new(crate::search::LocalSearch::new(engine)),
+    };
+    evaluator.load(backend.as_mut())?;
+    std::fs::create_dir_all(&a.output)
+        .with_context(|| format!("cannot create the output directory {}", a.output.display()))?;
+    let settings = ais::AisSettings {
+        population: a.population.max(2),
+        generations: a.generations.max(1),
+        seed: a.seed,
+        ..ais::AisSettings::default()
+    };
+    let bar = (!a.quiet).then(|| {
+        let b = ProgressBar::new(settings.generations as u64);
+        b.set_style(
+            ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} generations {elapsed}")
+                .unwrap()
+                .progress_chars("=> "),
+        );
+        b.set_message("immune search");
+        b
+    });
+    let result = ais::search(&mut evaluator, backend.as_mut(), &sample, &settings, &|g| {
+        if let Some(b) = &bar {
+            b.set_position(g.generation as u64);
+        }
+        tracing::info!(
+            generation = g.generation,
+            best_f = g.best_f,
+            "generation done"
+        );
+    })?;
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let random = if a.baseline > 0 {
+        ais::random_affinities(
+            &mut evaluator,
+            backend.as_mut(),
+            &sample,
+            a.baseline,
+            settings.lambda,
+            a.seed ^ 0x5eed,
+        )?
+    } else {
+        Vec::new()
+    };
+    let t = std::time::Instant::now();
+    let (images, built) = ais::build_tiles(&evaluator, &sample, &result.genes);
+    let build_seconds = t.elapsed().as_secs_f64();
+    let mut entries = Vec::new();
+    for (k, (img, tile)) in images.iter().zip(&built).enumerate() {
+        let path = tile_path(&a.output, k + 1);
+        imaging::save_color(&path, img)?;
+        entries.push(OmegaEntry {
+            number: k + 1,
+            file: path.file_name().unwrap().to_string_lossy().into_owned(),
+            tile,
+        });
+    }
+    let index = vec![(1..=images.len()).collect::<Vec<_>>()];
+    imaging::save_color(
+        &a.output.join("atlas.png"),
+        &tiles::assemble(&images, &index)?,
+    )?;
+    let ais_file = AisFile {
+        settings: &settings,
+        evaluation_steps: evaluator.steps,
+        evaluation_side: evaluator.side,
+        result: &result,
+        random_mean_f: (!random.is_empty())
+            .then(|| random.iter().sum::<f64>() / random.len() as f64),
+        random_best_f: random.iter().copied().reduce(f64::max),
+        random_sets: random.len(),
+    };
+    imaging::save_bytes(
+        &a.output.join("ais.json"),
+        &serde_json::to_vec_pretty(&ais_file)?,
+    )?;
+    let file = OmegaSetFile {
+        method: "omega",
+        sample: a.sample.display().to_string(),
+        tile_width: size,
+        tile_height: size,
+        set: set
+            .tiles
+            .iter()
+            .map(|&t| tiles::omega::OmegaSet::name(t))
+            .collect(),
+        patches: &result.genes,
+        tiles: entries,
+        search_seconds: result.seconds,
+        build_seconds,
+        seconds: started.elapsed().as_secs_f64(),
+    };
+    imaging::save_bytes(
+        &a.output.join("tileset.json"),
+        &serde_json::to_vec_pretty(&file)?,
+    )?;
+    if !a.quiet {
+        eprintln!(
+            "wrote {} ω-tiles of {size}×{size} to {} (f = {:.4}, {:.2} s)",
+            images.len(),
+            a.output.display(),
+            result.best_f,
+            file.seconds
+        );
+    }
+    Ok(())
+}
+
+/// The ω-tile set a `tileset.json` describes, if it describes one.
+fn omega_set_of(json: &serde_json::Value) -> Result<Option<tiles::omega::OmegaSet>> {
+    if json["method"] != "omega" {
+        return Ok(None);
+    }
+    let names = json["set"]
+        .as_array()
+        .context("tileset.json of an ω-tile set lists no \"set\"")?;
+    let tiles = names
+        .iter()
+        .map(|n| {
+            let n = n.as_str().unwrap_or("");
+            let corners: Vec<u8> = n
+                .chars()
+                .filter_map(|c| tiles::omega::COLOUR_NAMES.iter().position(|&k| k == c))
+                .map(|k| k as u8)
+                .collect();
+            <[u8; 4]>::try_from(corners)
+                .map_err(|_| anyhow::anyhow!("tileset.json: '{n}' is not four corner colours"))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let colours = tiles
+        .iter()
+        .flatten()
+        .map(|&c| usize::from(c) + 1)
+        .max()
+        .unwrap_or(0);
+    Ok(Some(tiles::omega::OmegaSet { colours, tiles }))
+}
+
 /// Reads an index matrix: JSON (an array of arrays) or CSV (comma, semicolon
 /// or whitespace separated; `#` starts a comment).
 pub fn read_index(path: &Path) -> Result<Vec<Vec<usize>>> {
@@ -291,13 +512,45 @@ fn assemble(a: &AssembleArgs) -> Result<()> {
     if set.is_empty() {
         bail!("{} holds no tile_01.png", a.dir.display());
     }
-    let index = match &a.index {
-        Some(p) => read_index(p)?,
-        None => {
+    let meta: serde_json::Value = serde_json::from_slice(&std::fs::read(&json)?)
+        .with_context(|| format!("{} is not valid JSON", json.display()))?;
+    let omega = omega_set_of(&meta)?;
+    let index = match (&a.index, &omega) {
+        (Some(p), _) => read_index(p)?,
+        (None, Some(o)) => {
+            let (cols, rows) = parse_pair(&a.grid, "--grid")?;
+            ensure!(
+                o.tiles.len() == set.len(),
+                "tileset.json lists {} ω-tiles but {} holds {}",
+                o.tiles.len(),
+                a.dir.display(),
+                set.len()
+            );
+            tiles::omega::scan_line_tiling(o, cols, rows, a.seed)?
+                .into_iter()
+                .map(|r| r.into_iter().map(|k| k + 1).collect())
+                .collect()
+        }
+        (None, None) => {
             let (cols, rows) = parse_pair(&a.grid, "--grid")?;
             tiles::random_index(set.len(), cols, rows, a.seed)
         }
     };
+    let in_range = index
+        .iter()
+        .flatten()
+        .all(|&n| (1..=set.len()).contains(&n));
+    if let (Some(o), Some(p), true) = (&omega, &a.index, in_range) {
+        let zero: Vec<Vec<usize>> = index
+            .iter()
+            .map(|r| r.iter().map(|&n| n - 1).collect())
+            .collect();
+        ensure!(
+            tiles::omega::tiling_is_valid(o, &zero),
+            "{}: neighbouring ω-tiles must agree on their shared corner colours",
+            p.display()
+        );
+    }
     let img = tiles::assemble(&set, &index)?;
     imaging::save_color(&a.output, &img)
 }

@@ -3,6 +3,7 @@
 //! adaptive blending ([`stitch`], §2.2), and patch insertion, template tiles,
 //! derived tile sets and index-matrix tiling ([`tileset`], §2.3, §3).
 
+pub mod ais;
 pub mod graphcut;
 pub mod omega;
 pub mod path;
