@@ -521,3 +521,162 @@ fn path_stitching_of_blocks_is_deterministic_and_keeps_the_copy_map_exact() {
         }
     }
 }
+
+/// ω-tiles on the command line: the files, a set that the scan-line tiler
+/// lays, the same bytes on 1 and 2 threads, the immune search beating the
+/// mean of random patch sets, and refusals that name the fix.
+#[test]
+fn omega_tiles_on_the_command_line() {
+    use common::s;
+    let dir = tempfile::tempdir().unwrap();
+    let sample = common::assets().join("pink_marble_color_128.png");
+    let make = |name: &str, threads: &str| {
+        let out = dir.path().join(name);
+        ok(&[
+            "tiles",
+            "make",
+            s(&sample),
+            "--method",
+            "omega",
+            "--set",
+            "8",
+            "--tile-size",
+            "64",
+            "--generations",
+            "10",
+            "--baseline",
+            "20",
+            "--threads",
+            threads,
+            "-q",
+            "-o",
+            s(&out),
+        ]);
+        out
+    };
+    let one = make("one", "1");
+    let two = make("two", "2");
+    for f in [
+        "tile_01.png",
+        "tile_08.png",
+        "atlas.png",
+        "tileset.json",
+        "ais.json",
+    ] {
+        assert!(one.join(f).is_file(), "{f}");
+    }
+    for k in 1..=8 {
+        let f = format!("tile_{k:02}.png");
+        assert!(
+            std::fs::read(one.join(&f)).unwrap() == std::fs::read(two.join(&f)).unwrap(),
+            "{f} differs between 1 and 2 threads"
+        );
+    }
+    let json = |d: &std::path::Path, f: &str| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(d.join(f)).unwrap()).unwrap()
+    };
+    assert_eq!(
+        json(&one, "tileset.json")["patches"],
+        json(&two, "tileset.json")["patches"]
+    );
+    let ais = json(&one, "ais.json");
+    let best = ais["result"]["best_f"].as_f64().unwrap();
+    assert!(best > ais["random_mean_f"].as_f64().unwrap(), "{ais}");
+    let history = ais["result"]["history"].as_array().unwrap();
+    assert!(history
+        .windows(2)
+        .all(|w| w[1]["best_f"].as_f64() >= w[0]["best_f"].as_f64()));
+    // Every tile keeps its corner patches' pixels at its four corners (the
+    // border ring is never cut away).
+    let set = json(&one, "tileset.json");
+    let patches = set["patches"].as_array().unwrap();
+    let sample_img =
+        ColorImage::from_vec(128, 128, image::open(&sample).unwrap().to_rgb8().into_raw());
+    for (k, corners) in set["set"].as_array().unwrap().iter().enumerate() {
+        let tile = image::open(one.join(format!("tile_{:02}.png", k + 1)))
+            .unwrap()
+            .to_rgb8();
+        let c = corners.as_str().unwrap().chars().next().unwrap();
+        let colour = texsyn::tiles::omega::COLOUR_NAMES
+            .iter()
+            .position(|&n| n == c)
+            .unwrap();
+        let (gx, gy) = (
+            patches[colour][0].as_u64().unwrap() as usize,
+            patches[colour][1].as_u64().unwrap() as usize,
+        );
+        // Tile pixel (0, 0) is pixel (32, 32) of its top-left patch.
+        assert_eq!(
+            tile.get_pixel(0, 0).0,
+            sample_img.get(gx + 32, gy + 32),
+            "tile {}",
+            k + 1
+        );
+    }
+    // Assembled by the scan-line tiler; an index whose neighbours disagree on
+    // a corner is refused.
+    let grid = dir.path().join("grid.png");
+    ok(&[
+        "tiles",
+        "assemble",
+        s(&one),
+        "--grid",
+        "5x4",
+        "--seed",
+        "2",
+        "-o",
+        s(&grid),
+    ]);
+    assert_eq!(image::image_dimensions(&grid).unwrap(), (5 * 64, 4 * 64));
+    let names: Vec<&str> = set["set"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| n.as_str().unwrap())
+        .collect();
+    // Two tiles that cannot sit side by side: the right corners of the first
+    // differ from the left corners of the second.
+    let (a, b) = (0..8)
+        .flat_map(|a| (0..8).map(move |b| (a, b)))
+        .find(|&(a, b)| {
+            let (l, r) = (names[a].as_bytes(), names[b].as_bytes());
+            l[1] != r[0] || l[3] != r[2]
+        })
+        .unwrap();
+    let csv = dir.path().join("bad.csv");
+    std::fs::write(&csv, format!("{},{}\n", a + 1, b + 1)).unwrap();
+    let err = refused(&[
+        "tiles",
+        "assemble",
+        s(&one),
+        "--index",
+        s(&csv),
+        "-o",
+        s(&grid),
+    ]);
+    assert!(err.contains("corner"), "{err}");
+    let err = refused(&[
+        "tiles",
+        "make",
+        s(&sample),
+        "--method",
+        "omega",
+        "--set",
+        "9",
+        "-o",
+        s(&grid),
+    ]);
+    assert!(err.contains("--set 8, 17 or 38"), "{err}");
+    let err = refused(&[
+        "tiles",
+        "make",
+        s(&sample),
+        "--method",
+        "omega",
+        "--tile-size",
+        "200",
+        "-o",
+        s(&grid),
+    ]);
+    assert!(err.contains("--tile-size"), "{err}");
+}

@@ -988,3 +988,52 @@ fn path_stitching_on_workers_matches_the_local_engine() {
         "cluster and local differ with --stitch path"
     );
 }
+
+/// ω-tiles (Dong–Zhou–Paul): the immune search's affinity searches run on two
+/// workers and give the same patches, the same f per generation and the same
+/// tiles as the in-process engine.
+#[test]
+fn omega_tiles_on_workers_match_the_local_engine() {
+    let dir = tempfile::tempdir().unwrap();
+    let sample = harness::texture_path("pink_marble_color_128.png");
+    let run = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let r = std::process::Command::new(harness::binary("texsyn"))
+            .args(["tiles", "make"])
+            .arg(&sample)
+            .args(["--method", "omega", "--set", "17", "--tile-size", "64"])
+            .args([
+                "--generations",
+                "8",
+                "--baseline",
+                "10",
+                "--seed",
+                "5",
+                "-q",
+            ])
+            .arg("-o")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let json = |f: &str| -> serde_json::Value {
+            serde_json::from_slice(&std::fs::read(out.join(f)).unwrap()).unwrap()
+        };
+        let history: Vec<serde_json::Value> = json("ais.json")["result"]["history"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|g| g["best_f"].clone())
+            .collect();
+        let tiles: Vec<Vec<u8>> = (1..=17)
+            .map(|k| std::fs::read(out.join(format!("tile_{k:02}.png"))).unwrap())
+            .collect();
+        (json("tileset.json")["patches"].clone(), history, tiles)
+    };
+    let cluster = run("cluster", &["--local-workers", "2"]);
+    let local = run("local", &[]);
+    assert_eq!(cluster.0, local.0, "patches");
+    assert_eq!(cluster.1, local.1, "f per generation");
+    assert!(cluster.2 == local.2, "tiles differ");
+}
