@@ -129,6 +129,21 @@ fn main() -> Result<()> {
     let index = [[7, 6, 1, 5], [3, 7, 5, 8], [5, 1, 6, 2], [4, 3, 2, 3]].map(Vec::from);
     let eight = texsyn::tiles::assemble(&set.tiles, &index)?;
     imaging::save_color(&docs.join("tiles.png"), &side_by_side(&[&one, &eight]))?;
+    println!("ω-tiles: pink marble, 38 tiles of 80² laid 6×4 by the scan-line tiler");
+    let marble = imaging::load_color(&tex.join("pink_marble_color_128.png"))?;
+    let set = texsyn::tiles::omega::OmegaSet::of_size(38)?;
+    let mut evaluator = texsyn::tiles::ais::Evaluator::new(&set, &marble, 80)?;
+    let mut backend = LocalSearch::new(Engine::default());
+    evaluator.load(&mut backend)?;
+    let settings = texsyn::tiles::ais::AisSettings::default();
+    let found = texsyn::tiles::ais::search(&mut evaluator, &mut backend, &marble, &settings, &|_| {})?;
+    let (omega_tiles, _) = texsyn::tiles::ais::build_tiles(&evaluator, &marble, &found.genes);
+    let index: Vec<Vec<usize>> = texsyn::tiles::omega::scan_line_tiling(&set, 6, 4, 2)?
+        .into_iter()
+        .map(|r| r.into_iter().map(|k| k + 1).collect())
+        .collect();
+    let wall = texsyn::tiles::assemble(&omega_tiles, &index)?;
+    imaging::save_color(&docs.join("omega.png"), &side_by_side(&[&marble, &wall]))?;
     println!("wrote {}", docs.display());
     Ok(())
 }
