@@ -136,7 +136,8 @@ fn main() -> Result<()> {
     let mut backend = LocalSearch::new(Engine::default());
     evaluator.load(&mut backend)?;
     let settings = texsyn::tiles::ais::AisSettings::default();
-    let found = texsyn::tiles::ais::search(&mut evaluator, &mut backend, &marble, &settings, &|_| {})?;
+    let found =
+        texsyn::tiles::ais::search(&mut evaluator, &mut backend, &marble, &settings, &|_| {})?;
     let (omega_tiles, _) = texsyn::tiles::ais::build_tiles(&evaluator, &marble, &found.genes);
     let index: Vec<Vec<usize>> = texsyn::tiles::omega::scan_line_tiling(&set, 6, 4, 2)?
         .into_iter()

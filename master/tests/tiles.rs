@@ -655,28 +655,20 @@ fn omega_tiles_on_the_command_line() {
         s(&grid),
     ]);
     assert!(err.contains("corner"), "{err}");
-    let err = refused(&[
-        "tiles",
-        "make",
-        s(&sample),
-        "--method",
-        "omega",
-        "--set",
-        "9",
-        "-o",
-        s(&grid),
-    ]);
+    let make_refused = |extra: &[&str]| {
+        let base = [
+            "tiles",
+            "make",
+            s(&sample),
+            "--method",
+            "omega",
+            "-o",
+            s(&grid),
+        ];
+        refused(&[&base[..], extra].concat())
+    };
+    let err = make_refused(&["--set", "9"]);
     assert!(err.contains("--set 8, 17 or 38"), "{err}");
-    let err = refused(&[
-        "tiles",
-        "make",
-        s(&sample),
-        "--method",
-        "omega",
-        "--tile-size",
-        "200",
-        "-o",
-        s(&grid),
-    ]);
+    let err = make_refused(&["--tile-size", "200"]);
     assert!(err.contains("--tile-size"), "{err}");
 }

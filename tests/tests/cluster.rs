@@ -959,16 +959,11 @@ fn path_stitching_on_workers_matches_the_local_engine() {
     let sample = harness::texture_path("brick_color_96.png");
     let run = |name: &str, extra: &[&str]| {
         let out = dir.path().join(name);
-        let r = std::process::Command::new(harness::binary("texsyn"))
-            .arg("synth")
-            .arg(&sample)
-            .args(["--size", "192x192", "--seed", "3", "--stitch", "path", "-q"])
-            .arg("-o")
-            .arg(&out)
-            .args(extra)
-            .output()
-            .unwrap();
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let (sample, out_arg) = (sample.to_str().unwrap(), out.to_str().unwrap());
+        let args = ["synth", sample, "--size", "192x192", "--seed", "3"];
+        harness::texsyn_ok(
+            &[&args[..], &["--stitch", "path", "-q", "-o", out_arg], extra].concat(),
+        );
         std::fs::read(out).unwrap()
     };
     let cluster = run(
@@ -998,25 +993,18 @@ fn omega_tiles_on_workers_match_the_local_engine() {
     let sample = harness::texture_path("pink_marble_color_128.png");
     let run = |name: &str, extra: &[&str]| {
         let out = dir.path().join(name);
-        let r = std::process::Command::new(harness::binary("texsyn"))
-            .args(["tiles", "make"])
-            .arg(&sample)
-            .args(["--method", "omega", "--set", "17", "--tile-size", "64"])
-            .args([
-                "--generations",
-                "8",
-                "--baseline",
-                "10",
-                "--seed",
-                "5",
-                "-q",
-            ])
-            .arg("-o")
-            .arg(&out)
-            .args(extra)
-            .output()
-            .unwrap();
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let (sample, out_arg) = (sample.to_str().unwrap(), out.to_str().unwrap());
+        let method = ["tiles", "make", sample, "--method", "omega", "--set", "17"];
+        let search = [
+            "--tile-size",
+            "64",
+            "--generations",
+            "8",
+            "--baseline",
+            "10",
+        ];
+        let rest = ["--seed", "5", "-q", "-o", out_arg];
+        harness::texsyn_ok(&[&method[..], &search, &rest, extra].concat());
         let json = |f: &str| -> serde_json::Value {
             serde_json::from_slice(&std::fs::read(out.join(f)).unwrap()).unwrap()
         };

@@ -168,6 +168,16 @@ pub fn alive(pid: u32) -> bool {
 }
 
 /// `assets/textures/NAME`.
+/// Runs `texsyn` with these arguments and asserts it succeeds.
+pub fn texsyn_ok<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> std::process::Output {
+    let r = std::process::Command::new(binary("texsyn"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    r
+}
+
 pub fn texture_path(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../assets/textures")
