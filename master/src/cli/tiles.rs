@@ -76,6 +76,10 @@ pub struct MakeArgs {
     /// ω-tiles: generations at most (N_g).
     #[arg(long, default_value_t = 50)]
     pub generations: usize,
+    /// ω-tiles: stop after this many generations without improvement (N_o;
+    /// 0 = never, run all N_g).
+    #[arg(long, default_value_t = 6)]
+    pub patience: usize,
     /// ω-tiles: random patch sets whose affinity `ais.json` reports beside the
     /// search's (0 = none).
     #[arg(long, default_value_t = 100)]
@@ -325,6 +329,11 @@ fn make_omega(a: &MakeArgs) -> Result<()> {
     let settings = ais::AisSettings {
         population: a.population.max(2),
         generations: a.generations.max(1),
+        patience: if a.patience == 0 {
+            usize::MAX
+        } else {
+            a.patience
+        },
         seed: a.seed,
         ..ais::AisSettings::default()
     };
