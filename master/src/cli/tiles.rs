@@ -170,6 +170,21 @@ fn tile_path(dir: &Path, n: usize) -> PathBuf {
     dir.join(format!("tile_{n:02}.png"))
 }
 
+/// A bar of `len` steps counted in `unit`, none with `--quiet`.
+fn progress_bar(quiet: bool, len: usize, unit: &str, message: &'static str) -> Option<ProgressBar> {
+    (!quiet).then(|| {
+        let b = ProgressBar::new(len as u64);
+        let template = format!("{{msg}} [{{bar:30}}] {{pos}}/{{len}} {unit} {{elapsed}}");
+        b.set_style(
+            ProgressStyle::with_template(&template)
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        b.set_message(message);
+        b
+    })
+}
+
 fn make(a: &MakeArgs) -> Result<()> {
     if matches!(a.method, TileMethod::Omega) {
         return super::thread_pool(a.threads)?.install(|| make_omega(a));
@@ -202,16 +217,7 @@ fn make(a: &MakeArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&a.output)
         .with_context(|| format!("cannot create the output directory {}", a.output.display()))?;
-    let bar = (!a.quiet).then(|| {
-        let b = ProgressBar::new(a.tiles as u64);
-        b.set_style(
-            ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} tiles {elapsed}")
-                .unwrap()
-                .progress_chars("=> "),
-        );
-        b.set_message("tiles");
-        b
-    });
+    let bar = progress_bar(a.quiet, a.tiles, "tiles", "tiles");
     let set = tiles::make_tile_set(&sample, template.as_ref(), &settings, &|k| {
         if let Some(b) = &bar {
             b.set_position(k as u64);
@@ -337,16 +343,12 @@ fn make_omega(a: &MakeArgs) -> Result<()> {
         seed: a.seed,
         ..ais::AisSettings::default()
     };
-    let bar = (!a.quiet).then(|| {
-        let b = ProgressBar::new(settings.generations as u64);
-        b.set_style(
-            ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} generations {elapsed}")
-                .unwrap()
-                .progress_chars("=> "),
-        );
-        b.set_message("immune search");
-        b
-    });
+    let bar = progress_bar(
+        a.quiet,
+        settings.generations,
+        "generations",
+        "immune search",
+    );
     let result = ais::search(&mut evaluator, backend.as_mut(), &sample, &settings, &|g| {
         if let Some(b) = &bar {
             b.set_position(g.generation as u64);

@@ -217,6 +217,21 @@ impl<'a> Evaluator<'a> {
     }
 }
 
+/// The affinity `f = 1/E` of an antibody whose tiles have errors `d`.
+pub fn affinity(d: &[f64], lambda: f64) -> f64 {
+    1.0 / energy(d, lambda).max(1e-12)
+}
+
+/// Sorts antibodies from high affinity to low (stable: ties keep their order).
+fn sort_by_affinity(population: &mut Vec<Vec<Gene>>, f: &mut Vec<f64>) {
+    let mut pairs: Vec<(f64, Vec<Gene>)> = f.drain(..).zip(population.drain(..)).collect();
+    pairs.sort_by(|a, b| b.0.total_cmp(&a.0));
+    for (v, g) in pairs {
+        f.push(v);
+        population.push(g);
+    }
+}
+
 /// `E = λ·ΣD + (1−λ)·Var(D)` (eq. 2).
 pub fn energy(d: &[f64], lambda: f64) -> f64 {
     let n = d.len() as f64;
@@ -386,18 +401,15 @@ pub fn search(
         Ok(ev
             .errors(backend, &at)?
             .iter()
-            .map(|d| 1.0 / energy(d, s.lambda).max(1e-12))
+            .map(|d| affinity(d, s.lambda))
             .collect())
     };
     let mut f = affinities(evaluator, backend, &population)?;
     let mut history = Vec::new();
     let (mut best_f, mut stale) = (f64::MIN, 0);
     for generation in 1..=s.generations.max(1) {
-        // §4.2.2: from high affinity to low (stable, so ties keep their order).
-        let mut order: Vec<usize> = (0..np).collect();
-        order.sort_by(|&a, &b| f[b].total_cmp(&f[a]));
-        population = order.iter().map(|&i| population[i].clone()).collect();
-        f = order.iter().map(|&i| f[i]).collect();
+        // §4.2.2: from high affinity to low.
+        sort_by_affinity(&mut population, &mut f);
         // §4.2.3: diversity h and the memory unit.
         let mut h_sum = 0.0;
         for a in &population {
@@ -464,10 +476,7 @@ pub fn search(
             }
         }
         // §4.2.6: the N_d worst die and are replaced by random antibodies.
-        let mut order: Vec<usize> = (0..np).collect();
-        order.sort_by(|&a, &b| f[b].total_cmp(&f[a]));
-        population = order.iter().map(|&i| population[i].clone()).collect();
-        f = order.iter().map(|&i| f[i]).collect();
+        sort_by_affinity(&mut population, &mut f);
         let generation_best = f[0];
         let deaths = s.deaths.min(np - 1);
         let newcomers: Vec<Vec<Gene>> = (0..deaths)
@@ -538,7 +547,7 @@ pub fn random_affinities(
     Ok(evaluator
         .errors(backend, &abs)?
         .iter()
-        .map(|d| 1.0 / energy(d, lambda).max(1e-12))
+        .map(|d| affinity(d, lambda))
         .collect())
 }
 

@@ -105,8 +105,7 @@ impl Network {
             }
             // Growth: claim free neighbours; stop at one of the other tree.
             let mut meet = None;
-            let arcs: Vec<usize> = self.arcs(p).collect();
-            for a in arcs {
+            for a in self.arcs(p) {
                 if !self.open(tree[p], a) {
                     continue;
                 }
@@ -174,8 +173,7 @@ impl Network {
                     }
                     continue;
                 }
-                let arcs: Vec<usize> = self.arcs(o).collect();
-                for a in arcs {
+                for a in self.arcs(o) {
                     let q = self.to[a];
                     if tree[q] != side {
                         continue;
@@ -296,9 +294,32 @@ pub fn poisson_smooth(
         return img.clone();
     }
     let mut out = img.clone();
+    let neighbours = |p: usize| [p - 1, p + 1, p - w, p + w];
+    let inner = |p: usize| (1..w - 1).contains(&(p % w)) && (1..h - 1).contains(&(p / w));
+    // Which of each inner pixel's four neighbours lie across a seam: asked
+    // once, not once per sweep and channel.
+    let across: Vec<[bool; 4]> = (0..w * h)
+        .map(|p| {
+            if inner(p) {
+                neighbours(p).map(|q| seam(p, q))
+            } else {
+                [false; 4]
+            }
+        })
+        .collect();
     for ch in 0..3 {
         let g: Vec<f32> = (0..w * h)
             .map(|p| f32::from(img.get(p % w, p / w)[ch]))
+            .collect();
+        // The guidance gradient towards each neighbour (0 across a seam).
+        let guide: Vec<[f32; 4]> = (0..w * h)
+            .map(|p| {
+                if !inner(p) {
+                    return [0.0; 4];
+                }
+                let qs = neighbours(p);
+                std::array::from_fn(|k| if across[p][k] { 0.0 } else { g[p] - g[qs[k]] })
+            })
             .collect();
         let mut f = g.clone();
         let omega = 1.8f32;
@@ -307,8 +328,7 @@ pub fn poisson_smooth(
                 for x in 1..w - 1 {
                     let p = y * w + x;
                     let mut sum = 0.0;
-                    for q in [p - 1, p + 1, p - w, p + w] {
-                        let v = if seam(p, q) { 0.0 } else { g[p] - g[q] };
+                    for (q, v) in neighbours(p).into_iter().zip(guide[p]) {
                         sum += f[q] + v;
                     }
                     f[p] += omega * (sum / 4.0 - f[p]);
@@ -330,6 +350,25 @@ pub fn poisson_smooth(
 mod tests {
     use super::*;
 
+    /// A seeded linear congruential generator of values in `0..m`.
+    fn lcg(mut seed: u64) -> impl FnMut(u64) -> u64 {
+        move |m| {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 33) % m
+        }
+    }
+
+    /// The capacity of the edges from the source side to the other.
+    fn crossing(edges: &[(usize, usize, i64)], side: &[bool]) -> i64 {
+        edges
+            .iter()
+            .filter(|&&(a, b, _)| side[a] && !side[b])
+            .map(|&(_, _, c)| c)
+            .sum()
+    }
+
     /// The least cut by trying every split of the inner nodes.
     fn brute_force(nodes: usize, s: usize, t: usize, edges: &[(usize, usize, i64)]) -> i64 {
         let inner: Vec<usize> = (0..nodes).filter(|&v| v != s && v != t).collect();
@@ -340,11 +379,7 @@ mod tests {
                 for (k, &v) in inner.iter().enumerate() {
                     side[v] = mask >> k & 1 == 1;
                 }
-                edges
-                    .iter()
-                    .filter(|&&(a, b, _)| side[a] && !side[b])
-                    .map(|&(_, _, c)| c)
-                    .sum::<i64>()
+                crossing(edges, &side)
             })
             .min()
             .unwrap()
@@ -362,13 +397,7 @@ mod tests {
 
     #[test]
     fn grids_agree_with_edmonds_karp() {
-        let mut seed = 3u64;
-        let mut next = move |m: u64| {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 33) % m
-        };
+        let mut next = lcg(3);
         for round in 0..20 {
             let (w, h) = (4 + next(27) as usize, 4 + next(27) as usize);
             let n = w * h;
@@ -397,24 +426,13 @@ mod tests {
                 edmonds_karp(n + 2, n, n + 1, &edges),
                 "grid {round}: {w}x{h}"
             );
-            let across: i64 = edges
-                .iter()
-                .filter(|&&(a, b, _)| side[a] && !side[b])
-                .map(|&(_, _, c)| c)
-                .sum();
-            assert_eq!(across, value, "grid {round}");
+            assert_eq!(crossing(&edges, &side), value, "grid {round}");
         }
     }
 
     #[test]
     fn the_cut_equals_a_brute_force_minimum_cut_on_small_graphs() {
-        let mut seed = 17u64;
-        let mut next = move |m: u64| {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 33) % m
-        };
+        let mut next = lcg(17);
         for _ in 0..300 {
             let nodes = 2 + next(9) as usize;
             let mut edges = Vec::new();
@@ -433,12 +451,7 @@ mod tests {
             );
             // The side found is a cut of that value.
             assert!(side[0] && !side[nodes - 1]);
-            let across: i64 = edges
-                .iter()
-                .filter(|&&(a, b, _)| side[a] && !side[b])
-                .map(|&(_, _, c)| c)
-                .sum();
-            assert_eq!(across, value);
+            assert_eq!(crossing(&edges, &side), value);
         }
     }
 
