@@ -22,6 +22,7 @@ pub mod cluster;
 pub mod compare;
 pub mod imaging;
 pub mod launch;
+pub mod parallel;
 pub mod search;
 pub mod tiles;
 pub mod ycbcr;

@@ -172,30 +172,6 @@ impl Window {
     }
 }
 
-/// The copy map as a picture (ARCHITECTURE §3.10): R = source x, G = source y, both
-/// scaled to 0..=255 over the sample size; B = 0. Missing entries are black.
-pub fn copy_map_image(
-    copy_map: &[[u32; 2]],
-    width: usize,
-    height: usize,
-    sample_w: usize,
-    sample_h: usize,
-) -> ColorImage {
-    let scale = |v: u32, n: usize| -> u8 {
-        if n <= 1 {
-            return 0;
-        }
-        let v = (v as u64).min(n as u64 - 1);
-        ((v * 255 + (n as u64 - 1) / 2) / (n as u64 - 1)) as u8
-    };
-    let mut out = ColorImage::new(width, height);
-    for (px, &[sx, sy]) in out.rgb.chunks_exact_mut(3).zip(copy_map) {
-        px[0] = scale(sx, sample_w);
-        px[1] = scale(sy, sample_h);
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -338,18 +314,5 @@ mod tests {
         assert_eq!(img2, orig);
         chroma_blur_borders(&mut img2, &map2[..3], 2);
         assert_eq!(img2, orig);
-    }
-
-    #[test]
-    fn copy_map_picture() {
-        let map = [[0, 0], [9, 0], [0, 4], [9, 4], [5, 2], [100, 100]];
-        let img = copy_map_image(&map, 3, 2, 10, 5);
-        assert_eq!(img.get(0, 0), [0, 0, 0]);
-        assert_eq!(img.get(1, 0), [255, 0, 0]);
-        assert_eq!(img.get(2, 0), [0, 255, 0]);
-        assert_eq!(img.get(0, 1), [255, 255, 0]);
-        assert_eq!(img.get(1, 1), [142, 128, 0]); // 5*255/9 = 141.7, 2*255/4 = 127.5
-        assert_eq!(img.get(2, 1), [255, 255, 0]);
-        assert_eq!(copy_map_image(&[[0, 0]], 1, 1, 1, 1).get(0, 0), [0, 0, 0]);
     }
 }

@@ -16,8 +16,10 @@ use crate::search::{LocalSearch, Plan, PlannedSearch};
 pub use cluster::{run_status, ClusterArgs, ClusterSetup, StatusArgs};
 
 mod cluster;
+mod parallel;
 mod paths;
 mod tiles;
+pub use parallel::{MorphArgs, ParallelArgs, ReplayArgs};
 pub use tiles::{read_index, CompareArgs, TilesCommand};
 
 const EXAMPLES: &str = "Examples:
@@ -27,6 +29,9 @@ const EXAMPLES: &str = "Examples:
   texsyn fill tile.png --mask-from-alpha --tileable -o out.png
   texsyn synth sample.png -o out.png --size 512x512
   texsyn synth sample.png -o out.png --size 256x256 --method scanline --report run.json
+  texsyn synth sample.png -o out.png --size 512x512 --method parallel --neighbourhood half --coords c.png
+  texsyn morph a.png b.png --ramp x -o morph.png --size 512x512
+  texsyn replay --coords c.png height.png normal.png -o replayed/
   texsyn tiles make sample.png --tiles 8 -o tiles/ && texsyn tiles assemble tiles/ --grid 8x8 -o wall.png
   texsyn compare sample.png out.png
 
@@ -63,6 +68,12 @@ pub enum Command {
     /// Tile sets that connect in any order (Somol–Haindl) and their assembly.
     #[command(subcommand)]
     Tiles(TilesCommand),
+    /// Morph several exemplars under weight maps, on coordinates (Manke–Wünsche §4).
+    #[command(after_help = "Example: texsyn morph a.png b.png --ramp x -o out.png --size 512x512")]
+    Morph(MorphArgs),
+    /// Copy other maps of a material (height, normal...) through a coordinate or copy map.
+    #[command(after_help = "Example: texsyn replay --coords c.png height.png -o replayed/")]
+    Replay(ReplayArgs),
     /// Compare two textures: JSON with S_F, S_L, colour, patch fidelity and seam scores.
     #[command(after_help = "Example: texsyn compare sample.png out.png")]
     Compare(CompareArgs),
@@ -85,9 +96,10 @@ pub struct Common {
     /// Block size B (odd, 1..=11).
     #[arg(long, default_value_t = 5)]
     pub block: usize,
-    /// Neighbourhood size N (odd, larger than the block).
-    #[arg(long, alias = "neighborhood", default_value_t = 11)]
-    pub neighbourhood: usize,
+    /// Neighbourhood size N (odd, larger than the block; default 11). With
+    /// `synth --method parallel`: reduced (default), half, 5 or 7.
+    #[arg(long, alias = "neighborhood")]
+    pub neighbourhood: Option<String>,
     /// Parent window M on the coarser level (odd; default covers N).
     #[arg(long)]
     pub parent_window: Option<usize>,
@@ -121,8 +133,9 @@ pub struct Common {
     /// textures whose structure and colour disagree. Runs on this machine.
     #[arg(long)]
     pub colour_search: bool,
-    /// Also write the copy map as a picture (R = source x, G = source y).
-    #[arg(long)]
+    /// Also write the copy map: a 16-bit RGB PNG with R = source x, G =
+    /// source y (exact; `texsyn replay` reads it).
+    #[arg(long, alias = "coords")]
     pub copy_map: Option<PathBuf>,
     /// Also write each level's luminance into this directory.
     #[arg(long)]
@@ -224,9 +237,14 @@ pub struct SynthArgs {
     /// Output size WxH.
     #[arg(long)]
     pub size: String,
-    /// grow: from a seeded sample patch; scanline: the paper's full synthesis.
+    /// grow: from a seeded sample patch; scanline: Stahlhut's full synthesis;
+    /// parallel: pixels on exemplar coordinates (Lefebvre–Hoppe, Manke–Wünsche).
     #[arg(long, value_enum, default_value_t = MethodArg::Grow)]
     pub method: MethodArg,
+    /// --method parallel: jitter strength r in [0, 1], or one per level,
+    /// coarsest first (r1,r2,...).
+    #[arg(long)]
+    pub jitter: Option<String>,
     /// Texture mixing: use FILE as the sample of pyramid level L (0 = finest), as L=FILE.
     #[arg(long = "level-sample", value_name = "L=FILE")]
     pub level_samples: Vec<String>,
@@ -238,6 +256,7 @@ pub struct SynthArgs {
 pub enum MethodArg {
     Grow,
     Scanline,
+    Parallel,
 }
 
 /// Parses the command line. A usage error (unknown flag, bad value) is
@@ -333,7 +352,12 @@ impl TryFrom<&Common> for Config {
     fn try_from(c: &Common) -> Result<Self> {
         let cfg = Config {
             block: c.block,
-            neighbourhood: c.neighbourhood,
+            neighbourhood: match c.neighbourhood.as_deref() {
+                None => 11,
+                Some(n) => n.trim().parse().with_context(|| {
+                    format!("--neighbourhood '{n}' is not a whole number; names like reduced or half belong to --method parallel")
+                })?,
+            },
             parent_window: c.parent_window,
             levels: c.levels,
             weights: parse_weights(&c.weights)?,
@@ -406,14 +430,7 @@ pub(crate) fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
 fn write_outputs(common: &Common, out: &block::Output, image: &DeepImage) -> Result<()> {
     imaging::save_image(&common.output, image)?;
     if let Some(p) = &common.copy_map {
-        let img = crate::block::colour::copy_map_image(
-            &out.copy_map,
-            out.image.width,
-            out.image.height,
-            out.sample_size[0],
-            out.sample_size[1],
-        );
-        imaging::save_color(p, &img)?;
+        imaging::save_coord_map(p, out.image.width, out.image.height, &out.copy_map)?;
     }
     if let Some(dir) = &common.levels_dir {
         for (l, g) in out.levels.iter().enumerate() {
@@ -631,7 +648,34 @@ pub fn run(cli: Cli) -> Result<()> {
                 Copies::of(deep),
             )
         }
+        Command::Synth(a) if matches!(a.method, MethodArg::Parallel) => {
+            paths::check_distinct(&[("input", &a.input)], &a.common)?;
+            let c = &a.common;
+            ensure!(
+                a.level_samples.is_empty()
+                    && !c.tileable
+                    && !c.colour_search
+                    && c.chroma_blur == 0
+                    && c.stitch == StitchArg::Hard
+                    && c.levels_dir.is_none()
+                    && c.report.is_none(),
+                "--method parallel takes --neighbourhood, --jitter, --seed, --threads, --coords (--copy-map) and the cluster flags; drop the block method's --level-sample, --tileable, --colour-search, --chroma-blur, --stitch, --levels-dir and --report"
+            );
+            let args = ParallelArgs {
+                neighbourhood: c.neighbourhood.clone().unwrap_or_else(|| "reduced".into()),
+                jitter: a.jitter.clone().unwrap_or_else(|| "0.4".into()),
+                seed: c.seed,
+                threads: c.threads,
+                quiet: c.quiet,
+                cluster: c.cluster.clone(),
+            };
+            parallel::run_synth(&a.input, &a.size, &c.output, c.copy_map.as_deref(), &args)
+        }
         Command::Synth(a) => {
+            ensure!(
+                a.jitter.is_none(),
+                "--jitter belongs to --method parallel"
+            );
             let mut cfg = Config::try_from(&a.common)?;
             let (width, height) = parse_size(&a.size)?;
             let mut level_files = Vec::new();
@@ -670,6 +714,7 @@ pub fn run(cli: Cli) -> Result<()> {
             let method = match a.method {
                 MethodArg::Grow => SynthMethod::Grow,
                 MethodArg::Scanline => SynthMethod::Scanline,
+                MethodArg::Parallel => unreachable!("handled above"),
             };
             run_synthesis(
                 &img,
@@ -685,6 +730,8 @@ pub fn run(cli: Cli) -> Result<()> {
         }
         Command::Cluster(ClusterCommand::Status(a)) => run_status(&a),
         Command::Tiles(t) => tiles::run(t),
+        Command::Morph(a) => parallel::run_morph(&a),
+        Command::Replay(a) => parallel::run_replay(&a),
         Command::Compare(a) => tiles::run_compare(&a),
     }
 }

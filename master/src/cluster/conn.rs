@@ -13,7 +13,7 @@ use texsyn_engine::Hit;
 use texsyn_proto::auth::BearerAuth;
 use texsyn_proto::tls::{error_chain, parse_address, ClientTls};
 use texsyn_proto::v1 as pb;
-use texsyn_proto::wire::{best_hits, bounds_from_proto, prune_from_proto};
+use texsyn_proto::wire::{best_hits, bounds_from_proto, prune_from_proto, topk_hits};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::codegen::InterceptedService;
@@ -384,6 +384,7 @@ async fn ask_chunk(
     let missed = || ClusterError::Deadline(deadline.saturating_duration_since(started).as_millis());
     let at = tokio::time::Instant::from_std(deadline);
     let id = chunk.batch_id;
+    let chunk_k = chunk.top_k;
     let bounds =
         bounds_from_proto(&chunk).map_err(|e| ClusterError::BadAnswer(e.message().into()))?;
     match tokio::time::timeout_at(at, stream.tx.send(chunk)).await {
@@ -403,14 +404,51 @@ async fn ask_chunk(
             asked: id,
         });
     }
-    let h = best_hits(&r, bounds.len()).map_err(|e| ClusterError::BadAnswer(format!("{e:#}")))?;
-    check_part(&h, &bounds, range).map_err(ClusterError::BadAnswer)?;
+    let k = chunk_k.max(1) as usize;
+    let h = if k == 1 {
+        let h =
+            best_hits(&r, bounds.len()).map_err(|e| ClusterError::BadAnswer(format!("{e:#}")))?;
+        check_part(&h, &bounds, range).map_err(ClusterError::BadAnswer)?;
+        h
+    } else {
+        let lists =
+            topk_hits(&r, bounds.len()).map_err(|e| ClusterError::BadAnswer(format!("{e:#}")))?;
+        flat_topk(&lists, k, range).map_err(ClusterError::BadAnswer)?
+    };
     let seconds = if r.seconds.is_finite() && r.seconds >= 0.0 {
         r.seconds
     } else {
         0.0
     };
     Ok((h, seconds, prune_from_proto(&r)))
+}
+
+/// A worker's top-k lists checked and laid flat, `k` slots per query padded
+/// with [`Hit::NONE`]: each list must be as long as the range allows
+/// (`min(k, range length)`), sorted by (distance, index) without repeats, and
+/// stay inside the range.
+pub(crate) fn flat_topk(lists: &[Vec<Hit>], k: usize, range: &Range<u64>) -> Result<Vec<Hit>, String> {
+    let want = (k as u64).min(range.end.saturating_sub(range.start)) as usize;
+    let mut out = Vec::with_capacity(lists.len() * k);
+    for l in lists {
+        if l.len() != want {
+            return Err(format!("answered {} of the {want} best matches", l.len()));
+        }
+        for (i, h) in l.iter().enumerate() {
+            if !range.contains(&h.index) || h.dist == u64::MAX {
+                return Err(format!(
+                    "answered index {} outside its range {}..{}",
+                    h.index, range.start, range.end
+                ));
+            }
+            if i > 0 && h.key() <= l[i - 1].key() {
+                return Err("top-k list not sorted by (distance, index)".into());
+            }
+        }
+        out.extend_from_slice(l);
+        out.extend(std::iter::repeat_n(Hit::NONE, k - l.len()));
+    }
+    Ok(out)
 }
 
 /// Runs `f` on `rt` from synchronous code. Inside another runtime's context

@@ -36,6 +36,9 @@ const RETRY_STRETCH: f64 = 4.0;
 struct Outgoing<'a> {
     batch: &'a QueryBatch,
     id: u64,
+    /// Matches per query: 1 = best match (answers one hit per query); more
+    /// = top-k (answers `k` slots per query, padded with `Hit::NONE`).
+    k: usize,
     values: &'a [u8],
     masks: &'a [u8],
 }
@@ -70,11 +73,17 @@ where
 impl ClusterSearch {
     /// Searches one batch until a round completes; each failed round drops at
     /// least one worker and cuts the level anew (ARCHITECTURE §4.3).
-    pub(super) fn search_batch(&mut self, batch: &QueryBatch, id: u64) -> Result<Vec<Hit>> {
+    pub(super) fn search_batch(
+        &mut self,
+        batch: &QueryBatch,
+        id: u64,
+        k: usize,
+    ) -> Result<Vec<Hit>> {
         let (values, masks) = batch.unpadded();
         let out = Outgoing {
             batch,
             id,
+            k,
             values: &values,
             masks: &masks,
         };
@@ -180,7 +189,7 @@ impl ClusterSearch {
                     job_id: self.opts.job_id.clone(),
                     level: lv as u32,
                     batch_id: first_chunk.wrapping_add(k as u64),
-                    top_k: 1,
+                    top_k: out.k as u32,
                     count: (q1 - q0) as u32,
                     values: out.values[q0 * dims..q1 * dims].to_vec(),
                     masks: out.masks[q0 * dims..q1 * dims].to_vec(),
@@ -199,18 +208,24 @@ impl ClusterSearch {
     }
 
     /// Searches the master's own share, if it has one.
-    fn search_master_share(&mut self, batch: &QueryBatch) -> Result<Option<Vec<Hit>>> {
+    fn search_master_share(&mut self, batch: &QueryBatch, k: usize) -> Result<Option<Vec<Hit>>> {
         let (Some(space), Some(level)) = (&self.master.space, &self.level) else {
             return Ok(None);
         };
         let t = Instant::now();
-        let (hits, prune) = self.engine.search_best_counted(
-            space,
-            self.master.range.clone(),
-            batch,
-            &level.data.params,
-        )?;
-        self.level_prune.add(&prune);
+        let range = self.master.range.clone();
+        let hits = if k == 1 {
+            let (hits, prune) =
+                self.engine
+                    .search_best_counted(space, range, batch, &level.data.params)?;
+            self.level_prune.add(&prune);
+            hits
+        } else {
+            let lists = self
+                .engine
+                .search_topk(space, range.clone(), batch, &level.data.params, k)?;
+            conn::flat_topk(&lists, k, &range).map_err(anyhow::Error::msg)?
+        };
         self.master.stats.search_seconds += t.elapsed().as_secs_f64();
         self.master.stats.queries += batch.len() as u64;
         self.master.stats.batches += 1;
@@ -251,7 +266,7 @@ impl ClusterSearch {
             expected.push(exp);
         }
         let mut parts: Vec<Vec<Hit>> = Vec::new();
-        parts.extend(self.search_master_share(out.batch)?);
+        parts.extend(self.search_master_share(out.batch, out.k)?);
         let answers = block_on(self.rt(), async move {
             let mut out = Vec::with_capacity(handles.len());
             for h in handles {
@@ -265,7 +280,7 @@ impl ClusterSearch {
             let checked = match a {
                 Ok(a) => self
                     .take_answer(i, a, n, cost, exp, &mut slow)
-                    .and_then(|hits| self.check_answers(out.batch, hits)),
+                    .and_then(|hits| self.check_answers(out.batch, hits, out.k)),
                 Err(e) => Err(ClusterError::Task(e.to_string())),
             };
             match checked {
@@ -276,9 +291,12 @@ impl ClusterSearch {
         if !failures.is_empty() {
             return Ok(Err((failures, participants.len())));
         }
-        let refs: Vec<&[Hit]> = parts.iter().map(Vec::as_slice).collect();
-        let merged =
-            texsyn_engine::with_bounds(out.batch.bounds(), &texsyn_engine::merge_answers(n, &refs));
+        let merged = if out.k == 1 {
+            let refs: Vec<&[Hit]> = parts.iter().map(Vec::as_slice).collect();
+            texsyn_engine::with_bounds(out.batch.bounds(), &texsyn_engine::merge_answers(n, &refs))
+        } else {
+            merge_flat_topk(&parts, n, out.k)
+        };
         self.after_batch(n, slow)?;
         Ok(Ok(merged))
     }
@@ -329,15 +347,17 @@ impl ClusterSearch {
         &self,
         batch: &QueryBatch,
         hits: Vec<Hit>,
+        k: usize,
     ) -> std::result::Result<Vec<Hit>, ClusterError> {
         let Some(level) = self.level.as_ref() else {
             return Ok(hits);
         };
         let mut scorer = texsyn_engine::Scorer::new(&level.data);
-        for (q, h) in hits.iter().enumerate() {
+        for (slot, h) in hits.iter().enumerate() {
             if h.is_none() {
                 continue;
             }
+            let q = slot / k;
             let actual = scorer.distance(h.index, batch, q);
             if actual != Some(h.dist) {
                 return Err(ClusterError::WrongAnswer {
@@ -372,6 +392,27 @@ impl ClusterSearch {
             None => self.maybe_rebalance(),
         }
     }
+}
+
+/// Merges flat top-k answers (`k` slots per query, padded with
+/// `Hit::NONE`) of disjoint ranges into one flat answer.
+fn merge_flat_topk(parts: &[Vec<Hit>], n: usize, k: usize) -> Vec<Hit> {
+    let mut out = Vec::with_capacity(n * k);
+    for q in 0..n {
+        let mut best: Vec<Hit> = Vec::new();
+        for p in parts {
+            let list: Vec<Hit> = p[q * k..(q + 1) * k]
+                .iter()
+                .copied()
+                .filter(|h| !h.is_none())
+                .collect();
+            best = texsyn_engine::merge_topk(&best, &list, k);
+        }
+        let len = best.len();
+        out.extend(best);
+        out.extend(std::iter::repeat_n(Hit::NONE, k - len));
+    }
+    out
 }
 
 #[cfg(test)]

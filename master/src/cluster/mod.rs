@@ -345,7 +345,32 @@ impl SearchBackend for ClusterSearch {
         } else {
             batch.without_hints()
         };
-        self.search_batch(&batch, batch_id)
+        self.search_batch(&batch, batch_id, 1)
+    }
+
+    fn search_topk(&mut self, batch: &QueryBatch, k: usize) -> Result<Vec<Vec<Hit>>> {
+        anyhow::ensure!(k >= 1, "top-k needs k ≥ 1");
+        anyhow::ensure!(
+            self.lbg_probes == 0,
+            "top-k search is exhaustive; LBG levels answer the best match only"
+        );
+        if batch.is_empty() {
+            return Ok(Vec::new());
+        }
+        let level = self.level.as_ref().context("search before load_level")?;
+        if batch.layout() != level.layout() {
+            bail!("the queries do not have the loaded level's layout");
+        }
+        let batch_id = self.next_batch;
+        self.next_batch += 1;
+        self.current_batch = Some(batch_id);
+        let span = tracing::debug_span!("top-k batch", batch = batch_id, queries = batch.len(), k);
+        let _enter = span.enter();
+        let flat = self.search_batch(&batch.without_hints(), batch_id, k)?;
+        Ok(flat
+            .chunks_exact(k)
+            .map(|c| c.iter().copied().filter(|h| !h.is_none()).collect())
+            .collect())
     }
 
     /// The workers' and the master's pruning figures of the level; none for

@@ -30,12 +30,14 @@
 use std::path::PathBuf;
 
 mod atomic;
+mod coordmap;
 mod deep;
 mod io;
 #[cfg(test)]
 mod tests;
 
 pub use atomic::check_writable_any;
+pub use coordmap::{load_coord_map, save_coord_map};
 pub use deep::{Channels, DeepImage, Depth, PixelFormat, SearchView};
 pub use io::{
     check_output_format, check_output_size, check_writable, load_alpha_mask, load_color,

@@ -114,6 +114,16 @@ impl SearchBackend for LocalSearch {
         Ok(with_bounds(queries.bounds(), &found))
     }
 
+    fn search_topk(&mut self, queries: &QueryBatch, k: usize) -> Result<Vec<Vec<Hit>>> {
+        let space = self
+            .space
+            .as_ref()
+            .ok_or_else(|| anyhow::anyhow!("search before load_level"))?;
+        Ok(self
+            .engine
+            .search_topk(space, space.start()..space.end(), queries, &self.params, k)?)
+    }
+
     fn level_prune(&self) -> Option<PruneStats> {
         Some(self.prune)
     }

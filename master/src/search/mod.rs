@@ -80,6 +80,12 @@ pub trait SearchBackend: Send {
     /// Best reference (global index, distance) per query; exact backends tie to
     /// the lowest index.
     fn search(&mut self, queries: &QueryBatch) -> Result<Vec<Hit>>;
+    /// The `k` best references per query, sorted by (distance, index): what
+    /// k-coherence candidate sets are made of. Exact backends only.
+    fn search_topk(&mut self, queries: &QueryBatch, k: usize) -> Result<Vec<Vec<Hit>>> {
+        let _ = (queries, k);
+        anyhow::bail!("{} cannot give the k best matches", self.name())
+    }
     /// Releases the level's memory.
     fn end_level(&mut self) {}
     /// Asks for LBG with `probes` instead of exhaustive search from the next

@@ -213,6 +213,10 @@ impl SearchBackend for PlannedSearch {
         self.backend().search(queries)
     }
 
+    fn search_topk(&mut self, queries: &QueryBatch, k: usize) -> Result<Vec<Vec<Hit>>> {
+        self.backend().search_topk(queries, k)
+    }
+
     fn end_level(&mut self) {
         self.backend().end_level();
     }

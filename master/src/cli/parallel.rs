@@ -1,0 +1,311 @@
+//! `texsyn synth --method parallel`, `texsyn morph` and `texsyn replay`: the
+//! synthesis on coordinates (ARCHITECTURE §10) from the command line.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{ensure, Context, Result};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use super::{parse_size, thread_pool, ClusterArgs};
+use crate::imaging::{self, ColorImage};
+use crate::parallel::synth::{self, Neighbourhood, ParallelSettings, Synthesis};
+use crate::parallel::weights;
+use crate::search::SearchBackend;
+
+#[derive(Args, Debug)]
+pub struct MorphArgs {
+    /// The exemplars, two or more (one works too: a plain synthesis).
+    #[arg(required = true)]
+    pub exemplars: Vec<PathBuf>,
+    /// Weight maps, one per exemplar, comma-separated, each the output size:
+    /// grey levels, normalised to sum to 1 per pixel.
+    #[arg(long, value_delimiter = ',', conflicts_with = "ramp")]
+    pub weight_maps: Vec<PathBuf>,
+    /// A linear ramp along x or y instead of weight maps: the first exemplar at
+    /// one edge, the last at the other.
+    #[arg(long)]
+    pub ramp: Option<String>,
+    /// Output image (PNG and the other formats of `synth`), written atomically.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Output size WxH.
+    #[arg(long)]
+    pub size: String,
+    /// Also write each exemplar's coordinate map (16-bit PNG; with several
+    /// exemplars FILE_1.png, FILE_2.png...).
+    #[arg(long)]
+    pub coords: Option<PathBuf>,
+    #[command(flatten)]
+    pub settings: ParallelArgs,
+}
+
+/// The settings of a synthesis on coordinates.
+#[derive(Args, Debug, Clone)]
+pub struct ParallelArgs {
+    /// Neighbourhood: reduced, half (half-reduced), 5 or 7 (full).
+    #[arg(long, alias = "neighborhood", default_value = "reduced")]
+    pub neighbourhood: String,
+    /// Jitter strength r in [0, 1], or one per level, coarsest first (r1,r2,...).
+    #[arg(long, default_value = "0.4")]
+    pub jitter: String,
+    /// Random seed of the jitter.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub cluster: ClusterArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct ReplayArgs {
+    /// A coordinate map (`--coords` of `synth --method parallel` or `morph`,
+    /// or `--copy-map` of the block method).
+    #[arg(long)]
+    pub coords: PathBuf,
+    /// Maps of the same material as the exemplar (height, normal, roughness...),
+    /// each the exemplar's size; copied at their own depth and channels.
+    #[arg(required = true)]
+    pub maps: Vec<PathBuf>,
+    /// Output directory: each map's replay under the map's file name.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+/// Parses the neighbourhood name.
+pub fn parse_neighbourhood(s: &str) -> Result<Neighbourhood> {
+    Ok(match s.trim().to_ascii_lowercase().as_str() {
+        "reduced" => Neighbourhood::Reduced,
+        "half" | "half-reduced" => Neighbourhood::Half,
+        "5" | "5x5" => Neighbourhood::Full(5),
+        "7" | "7x7" => Neighbourhood::Full(7),
+        _ => anyhow::bail!(
+            "--neighbourhood '{s}' is not one of reduced, half, 5 or 7 for the synthesis on coordinates"
+        ),
+    })
+}
+
+impl ParallelArgs {
+    fn settings(&self) -> Result<ParallelSettings> {
+        let jitter = self
+            .jitter
+            .split(',')
+            .map(|v| {
+                let r: f64 = v
+                    .trim()
+                    .parse()
+                    .with_context(|| format!("--jitter '{v}' is not a number"))?;
+                ensure!((0.0..=1.0).contains(&r), "--jitter {r} must be in [0, 1]");
+                Ok(r)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(ParallelSettings {
+            neighbourhood: parse_neighbourhood(&self.neighbourhood)?,
+            jitter,
+            seed: self.seed,
+            ..ParallelSettings::default()
+        })
+    }
+
+    /// Runs the morph of `exemplars` with `maps` on the local engine or the
+    /// cluster, with a progress bar over the levels.
+    fn run(
+        &self,
+        exemplars: &[&ColorImage],
+        maps: &[Vec<f32>],
+        size: (usize, usize),
+    ) -> Result<Synthesis> {
+        let settings = self.settings()?;
+        let pool = thread_pool(self.threads)?;
+        let engine = texsyn_engine::Engine::default();
+        let cluster = self.cluster.setup()?;
+        let (options, _local_workers, _ssh_workers) = match cluster {
+            Some(c) => (Some(c.options), c.local, c.ssh),
+            None => (None, None, None),
+        };
+        let mut backend: Box<dyn SearchBackend> = match options {
+            Some(o) => Box::new(crate::cluster::ClusterSearch::connect(o, engine)?),
+            None => Box::new(crate::search::LocalSearch::new(engine)),
+        };
+        let bar = if self.quiet {
+            ProgressBar::hidden()
+        } else {
+            ProgressBar::new(0).with_style(
+                ProgressStyle::with_template("level {pos}/{len} [{bar:40}] {elapsed_precise}")
+                    .unwrap_or_else(|_| ProgressStyle::default_bar())
+                    .progress_chars("=> "),
+            )
+        };
+        let progress = |level: usize, levels: usize| {
+            bar.set_length(levels as u64);
+            bar.set_position(level as u64);
+            tracing::info!(level, levels, "coordinate level");
+        };
+        let t = Instant::now();
+        let out = pool.install(|| {
+            synth::morph(
+                exemplars,
+                maps,
+                size.0,
+                size.1,
+                &settings,
+                backend.as_mut(),
+                &progress,
+            )
+        })?;
+        bar.finish_and_clear();
+        tracing::info!(
+            seconds = t.elapsed().as_secs_f64(),
+            levels = out.levels,
+            "synthesis on coordinates done"
+        );
+        Ok(out)
+    }
+}
+
+/// `synth --method parallel`: the output is copied whole-pixel from the
+/// sample at its own depth through the coordinates.
+pub fn run_synth(
+    input: &Path,
+    size: &str,
+    output: &Path,
+    coords: Option<&Path>,
+    args: &ParallelArgs,
+) -> Result<()> {
+    let size = parse_size(size)?;
+    check_output(output, coords, size)?;
+    let deep = imaging::load_image(input)?;
+    imaging::check_output_format(output, deep.format)?;
+    let sample = deep.search_colour();
+    let ones = vec![vec![1.0f32; size.0 * size.1]];
+    let t = Instant::now();
+    let out = args.run(&[&sample], &ones, size)?;
+    let image = deep.rebuild(&out.coords[0].coords, size.0, size.1, None)?;
+    imaging::save_image(output, &image)?;
+    if let Some(p) = coords {
+        imaging::save_coord_map(p, size.0, size.1, &out.coords[0].coords)?;
+    }
+    done(args.quiet, output, size, out.levels, t);
+    Ok(())
+}
+
+/// `texsyn morph`.
+pub fn run_morph(a: &MorphArgs) -> Result<()> {
+    let size = parse_size(&a.size)?;
+    let m = a.exemplars.len();
+    let coord_paths: Vec<PathBuf> = match &a.coords {
+        None => Vec::new(),
+        Some(p) if m == 1 => vec![p.clone()],
+        Some(p) => (1..=m).map(|j| numbered(p, j)).collect(),
+    };
+    check_output(&a.output, None, size)?;
+    for p in &coord_paths {
+        check_output(p, None, size)?;
+    }
+    let images = a
+        .exemplars
+        .iter()
+        .map(|p| imaging::load_color(p))
+        .collect::<Result<Vec<_>>>()?;
+    let maps = match (&a.ramp, a.weight_maps.is_empty()) {
+        (Some(axis), _) => weights::ramp(m, weights::parse_axis(axis)?, size.0, size.1),
+        (None, false) => {
+            ensure!(
+                a.weight_maps.len() == m,
+                "{} weight maps for {m} exemplars; give one per exemplar, in the same order",
+                a.weight_maps.len()
+            );
+            let paths: Vec<&Path> = a.weight_maps.iter().map(PathBuf::as_path).collect();
+            weights::load(&paths, size.0, size.1)?
+        }
+        (None, true) if m == 1 => vec![vec![1.0; size.0 * size.1]],
+        (None, true) => {
+            anyhow::bail!("a morph of {m} exemplars needs --weight-maps WA.png,WB.png,... or --ramp x|y")
+        }
+    };
+    let refs: Vec<&ColorImage> = images.iter().collect();
+    let t = Instant::now();
+    let out = a.settings.run(&refs, &maps, size)?;
+    imaging::save_color(&a.output, &out.image)?;
+    for (p, c) in coord_paths.iter().zip(&out.coords) {
+        imaging::save_coord_map(p, size.0, size.1, &c.coords)?;
+    }
+    done(a.settings.quiet, &a.output, size, out.levels, t);
+    Ok(())
+}
+
+/// `texsyn replay`: every map copied through the coordinates, at its own
+/// depth and channels, with no search.
+pub fn run_replay(a: &ReplayArgs) -> Result<()> {
+    let (w, h, coords) = imaging::load_coord_map(&a.coords)?;
+    std::fs::create_dir_all(&a.output)
+        .with_context(|| format!("cannot create the output directory {}", a.output.display()))?;
+    let (most_x, most_y) = coords
+        .iter()
+        .fold((0, 0), |(x, y), c| (x.max(c[0]), y.max(c[1])));
+    let mut names = std::collections::HashSet::new();
+    for p in &a.maps {
+        let name = p
+            .file_name()
+            .with_context(|| format!("{} names no file", p.display()))?;
+        ensure!(
+            names.insert(name.to_owned()),
+            "two maps are named {}; replay writes each under its file name, so rename one",
+            name.to_string_lossy()
+        );
+    }
+    for p in &a.maps {
+        let map = imaging::load_image(p)?;
+        ensure!(
+            (most_x as usize) < map.width && (most_y as usize) < map.height,
+            "{} is {}x{}, but the coordinate map points up to ({most_x}, {most_y}); replay maps of the exemplar's size",
+            p.display(),
+            map.width,
+            map.height
+        );
+        let out = map.rebuild(&coords, w, h, None)?;
+        let target = a.output.join(p.file_name().expect("checked above"));
+        ensure!(
+            target.canonicalize().ok() != p.canonicalize().ok(),
+            "replaying {} would overwrite it; choose another -o directory",
+            p.display()
+        );
+        imaging::save_image(&target, &out)?;
+        tracing::info!(map = %p.display(), out = %target.display(), "replayed");
+    }
+    Ok(())
+}
+
+/// `FILE_j.ext` from `FILE.ext`.
+fn numbered(p: &Path, j: usize) -> PathBuf {
+    let stem = p.file_stem().map(|s| s.to_string_lossy()).unwrap_or_default();
+    let ext = p.extension().map(|s| s.to_string_lossy()).unwrap_or_default();
+    p.with_file_name(format!("{stem}_{j}.{ext}"))
+}
+
+fn check_output(output: &Path, coords: Option<&Path>, size: (usize, usize)) -> Result<()> {
+    imaging::check_writable(output)?;
+    imaging::check_output_size(output, size.0, size.1)?;
+    if let Some(p) = coords {
+        imaging::check_writable(p)?;
+    }
+    Ok(())
+}
+
+fn done(quiet: bool, output: &Path, size: (usize, usize), levels: usize, t: Instant) {
+    if !quiet {
+        eprintln!(
+            "wrote {} ({}×{}, {levels} levels, {:.2} s)",
+            output.display(),
+            size.0,
+            size.1,
+            t.elapsed().as_secs_f64()
+        );
+    }
+}

@@ -1,0 +1,162 @@
+//! Appearance space (Lefebvre and Hoppe 2006, Manke–Wünsche §3): each pixel
+//! is described by the colours of its 5×5 window, and the descriptors are
+//! projected on their first principal components, at least 8 and as many as
+//! it takes to keep 95 % of the variance. For morphing, the analysis runs
+//! jointly over all exemplars, so their appearance vectors share one space.
+
+use anyhow::{ensure, Result};
+use nalgebra::{DMatrix, SymmetricEigen};
+
+use crate::imaging::ColorImage;
+
+/// Side of the window a pixel's descriptor gathers.
+pub const WINDOW: usize = 5;
+/// Least number of components kept.
+pub const MIN_COMPONENTS: usize = 8;
+/// Descriptors per exemplar the analysis samples at most (a grid over
+/// larger exemplars).
+pub const FIT_SAMPLES: usize = 1 << 16;
+/// Share of the variance the kept components must explain.
+pub const MIN_VARIANCE: f64 = 0.95;
+
+/// The 5×5 RGB window around `(x, y)`, wrapping at the edges (exemplars are
+/// treated as toroidal, as the synthesis wraps coordinates).
+pub fn descriptor(img: &ColorImage, x: usize, y: usize) -> Vec<f64> {
+    let r = (WINDOW / 2) as isize;
+    let (w, h) = (img.width as isize, img.height as isize);
+    let mut out = Vec::with_capacity(WINDOW * WINDOW * 3);
+    for dy in -r..=r {
+        for dx in -r..=r {
+            let px = img.get(
+                (x as isize + dx).rem_euclid(w) as usize,
+                (y as isize + dy).rem_euclid(h) as usize,
+            );
+            out.extend(px.iter().map(|&c| f64::from(c)));
+        }
+    }
+    out
+}
+
+/// A principal-component projection of descriptors.
+#[derive(Clone, Debug)]
+pub struct Pca {
+    pub mean: Vec<f64>,
+    /// Kept components, largest variance first, one row each.
+    pub components: Vec<Vec<f64>>,
+    /// Share of the total variance the kept components explain.
+    pub explained: f64,
+}
+
+impl Pca {
+    /// The analysis of every pixel descriptor of all `exemplars` together.
+    pub fn fit(exemplars: &[&ColorImage]) -> Result<Self> {
+        ensure!(!exemplars.is_empty(), "no exemplar to analyse");
+        let dim = WINDOW * WINDOW * 3;
+        let mut mean = vec![0.0; dim];
+        let mut count = 0usize;
+        let mut cov = DMatrix::<f64>::zeros(dim, dim);
+        let mut rows: Vec<Vec<f64>> = Vec::new();
+        for img in exemplars {
+            // At most about FIT_SAMPLES descriptors per exemplar, on a grid.
+            let step = (((img.width * img.height) as f64 / FIT_SAMPLES as f64)
+                .sqrt()
+                .ceil() as usize)
+                .max(1);
+            for y in (0..img.height).step_by(step) {
+                for x in (0..img.width).step_by(step) {
+                    rows.push(descriptor(img, x, y));
+                }
+            }
+        }
+        for r in &rows {
+            for (m, v) in mean.iter_mut().zip(r) {
+                *m += v;
+            }
+            count += 1;
+        }
+        mean.iter_mut().for_each(|m| *m /= count as f64);
+        for r in &rows {
+            let centred =
+                nalgebra::DVector::from_iterator(dim, r.iter().zip(&mean).map(|(v, m)| v - m));
+            cov.syger(1.0, &centred, &centred, 1.0);
+        }
+        cov /= count.max(2) as f64 - 1.0;
+        let eig = SymmetricEigen::new(cov);
+        let mut order: Vec<usize> = (0..dim).collect();
+        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+        let total: f64 = eig.eigenvalues.iter().map(|v| v.max(0.0)).sum();
+        let mut kept = 0.0;
+        let mut components = Vec::new();
+        for &k in &order {
+            if components.len() >= MIN_COMPONENTS && kept >= MIN_VARIANCE * total {
+                break;
+            }
+            kept += eig.eigenvalues[k].max(0.0);
+            components.push(eig.eigenvectors.column(k).iter().copied().collect());
+        }
+        Ok(Self {
+            mean,
+            components,
+            explained: if total > 0.0 { kept / total } else { 1.0 },
+        })
+    }
+
+    /// The appearance vector of a descriptor.
+    pub fn project(&self, d: &[f64]) -> Vec<f64> {
+        self.components
+            .iter()
+            .map(|c| {
+                c.iter()
+                    .zip(d)
+                    .zip(&self.mean)
+                    .map(|((c, v), m)| c * (v - m))
+                    .sum()
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn texture(name: &str) -> ColorImage {
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../assets/textures")
+            .join(name);
+        crate::imaging::load_color(&p).unwrap()
+    }
+
+    #[test]
+    fn the_kept_components_explain_at_least_95_percent() {
+        let a = texture("pink_marble_color_128.png");
+        let b = texture("brick_color_96.png");
+        for set in [vec![&a], vec![&b], vec![&a, &b]] {
+            let pca = Pca::fit(&set).unwrap();
+            assert!(pca.components.len() >= MIN_COMPONENTS);
+            assert!(pca.explained >= MIN_VARIANCE, "{}", pca.explained);
+            // The components are orthonormal.
+            for (i, u) in pca.components.iter().enumerate() {
+                for (j, v) in pca.components.iter().enumerate() {
+                    let dot: f64 = u.iter().zip(v).map(|(p, q)| p * q).sum();
+                    let want = if i == j { 1.0 } else { 0.0 };
+                    assert!((dot - want).abs() < 1e-9, "{i} {j} {dot}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn projection_keeps_most_of_each_descriptor_s_energy() {
+        let a = texture("pink_marble_color_128.png");
+        let pca = Pca::fit(&[&a]).unwrap();
+        let (mut kept, mut all) = (0.0, 0.0);
+        for (x, y) in [(0, 0), (17, 40), (127, 127), (64, 3)] {
+            let d = descriptor(&a, x, y);
+            let c: Vec<f64> = d.iter().zip(&pca.mean).map(|(v, m)| v - m).collect();
+            all += c.iter().map(|v| v * v).sum::<f64>();
+            kept += pca.project(&d).iter().map(|v| v * v).sum::<f64>();
+        }
+        assert!(kept <= all + 1e-6 && kept > 0.5 * all, "{kept} of {all}");
+    }
+}

@@ -1,0 +1,16 @@
+//! Parallel pixel synthesis on exemplar coordinates (Lefebvre and Hoppe, as
+//! Manke and Wünsche §3–4 summarise and extend it to morphing; ARCHITECTURE
+//! §10): every level stores exemplar coordinates, so each pixel of a
+//! correction sub-pass is computed on its own.
+//!
+//! - [`coords`]: coordinate levels, upsampling and the §4.2 jitter;
+//! - [`appearance`]: the appearance space (5×5 windows, PCA);
+//! - [`candidates`]: k-coherence sets from the engine's top-k search;
+//! - [`weights`]: weight maps of a morph;
+//! - [`synth`]: the levels, the correction and the morph.
+
+pub mod appearance;
+pub mod candidates;
+pub mod coords;
+pub mod synth;
+pub mod weights;
