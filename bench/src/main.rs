@@ -1,7 +1,7 @@
 //! `texsyn-bench`: texsyn's benchmarks (ARCHITECTURE §6), one subcommand each:
 //! the paper's configurations end to end (Stahlhut Table 1, §10.2), LBG
-//! against exhaustive search (Stahlhut §8), the cluster on loopback and the
-//! search kernel.
+//! against exhaustive search (Stahlhut §8), the cluster on loopback, the
+//! search kernel and the synthesis on coordinates.
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -12,6 +12,7 @@ mod faults;
 mod kernel;
 mod large;
 mod lbg;
+mod morph;
 mod paper;
 
 const EXAMPLES: &str = "Examples:
@@ -22,6 +23,7 @@ const EXAMPLES: &str = "Examples:
   texsyn-bench kernel --vectors 240000 --dims 192 --queries 64
   texsyn-bench large ../shared/textures/mossy_rock_color_1024.png --size 1024x1024 --unpruned
   texsyn-bench upscale ../shared/textures/mossy_rock_color_1024.png -o /tmp/rock_8192.png --factor 8
+  texsyn-bench morph --reps 3 --out /tmp/morph
   texsyn-bench faults --runs 50 --seed 1 --json /tmp/faults.json
   /usr/bin/time -v texsyn synth /tmp/rock_8192.png -o /tmp/out.png --size 512x512 [--local-workers 2]
 
@@ -70,6 +72,10 @@ enum Command {
         after_help = "Example: texsyn-bench upscale ../shared/textures/mossy_rock_color_1024.png -o /tmp/rock_8192.png --factor 8"
     )]
     Upscale(large::UpscaleArgs),
+    /// The synthesis on coordinates: a 512² morph of two exemplars per
+    /// neighbourhood, then `--method parallel` against the block method.
+    #[command(after_help = "Example: texsyn-bench morph --reps 3 --out /tmp/morph")]
+    Morph(morph::MorphArgs),
     /// The seeded fault campaign: cluster runs with random kills, stops,
     /// partitions, restarts, slowed and lying workers; every output must be
     /// bit-identical, nothing left behind.
@@ -110,6 +116,7 @@ fn main() -> ExitCode {
         Command::Kernel(a) => kernel::run(a),
         Command::Large(a) => large::run(&a),
         Command::Upscale(a) => large::upscale(&a),
+        Command::Morph(a) => morph::run(&a),
         Command::Faults(a) => faults::run(&a),
         Command::Hog(a) => faults::hog(&a),
     };

@@ -1,11 +1,16 @@
 //! Makes the before/after pictures of the README from the bundled textures:
-//! `cargo run --release --example readme_pictures` writes `docs/*.png`.
+//! `cargo run --release --example readme_pictures [NAME...]` writes `docs/*.png`.
 
 use std::path::Path;
 
 use anyhow::Result;
 use texsyn::block::Silent;
 use texsyn::imaging::{self, ColorImage};
+use texsyn::parallel::{
+    self,
+    synth::{Neighbourhood, ParallelSettings},
+    weights,
+};
 use texsyn::search::{LocalSearch, Plan, PlannedSearch};
 use texsyn::{synthesize, Config, Mode, Position, SynthMethod};
 use texsyn_engine::Engine;
@@ -54,97 +59,159 @@ fn main() -> Result<()> {
     let tex = root.join("assets/textures");
     let docs = root.join("docs");
     std::fs::create_dir_all(&docs)?;
+    // Names on the command line (fill, extend, synth, tiles, omega, morph,
+    // replay) make only those pictures.
+    let only: Vec<String> = std::env::args().skip(1).collect();
+    let want = |name: &str| only.is_empty() || only.iter().any(|o| o == name);
 
-    println!("fill: coffee beans with a red scribble");
-    let photo = imaging::load_color(&tex.join("coffee_scribble_color_400.png"))?;
-    let holes = imaging::load_mask(
-        &tex.join("coffee_scribble_mask_400.png"),
-        photo.width,
-        photo.height,
-    )?;
-    let filled = run(
-        &photo,
-        Mode::Fill {
-            holes,
-            source: None,
-        },
-        Config::default(),
-    )?;
-    imaging::save_color(&docs.join("fill.png"), &side_by_side(&[&photo, &filled]))?;
-
-    println!("extend --tileable: brick, shown tiled 2×2");
-    let brick = imaging::load_color(&tex.join("brick_color_96.png"))?;
-    let cfg = Config {
-        tileable: true,
-        ..Config::default()
-    };
-    let extended = run(
-        &brick,
-        Mode::Extend {
-            width: 192,
-            height: 192,
-            position: Position::Center,
-        },
-        cfg,
-    )?;
-    imaging::save_color(
-        &docs.join("extend_tileable.png"),
-        &side_by_side(&[&brick, &tiled(&extended, 2, 2)]),
-    )?;
-
-    println!("synth: leaves and pink marble");
-    let mut row = Vec::new();
-    for name in ["leaves_green_color_161.png", "pink_marble_color_128.png"] {
-        let sample = imaging::load_color(&tex.join(name))?;
-        let out = run(
-            &sample,
-            Mode::Synth {
-                width: 320,
-                height: 320,
-                method: SynthMethod::Grow,
+    if want("fill") {
+        println!("fill: coffee beans with a red scribble");
+        let photo = imaging::load_color(&tex.join("coffee_scribble_color_400.png"))?;
+        let holes = imaging::load_mask(
+            &tex.join("coffee_scribble_mask_400.png"),
+            photo.width,
+            photo.height,
+        )?;
+        let filled = run(
+            &photo,
+            Mode::Fill {
+                holes,
+                source: None,
             },
             Config::default(),
         )?;
-        row.push(sample);
-        row.push(out);
+        imaging::save_color(&docs.join("fill.png"), &side_by_side(&[&photo, &filled]))?;
     }
-    let refs: Vec<&ColorImage> = row.iter().collect();
-    imaging::save_color(&docs.join("synth.png"), &side_by_side(&refs))?;
-    println!("tiles: coffee beans, one tile against eight (the paper's Fig. 10 index)");
-    let beans = imaging::load_color(&tex.join("coffee_beans_color_512.png"))?;
-    let settings = texsyn::tiles::TileSetSettings {
-        tiles: 8,
-        min_size: 102,
-        max_size: 128,
-        overlap: 12,
-        belt: 12,
-        margin: 2,
-        candidates: 48,
-        refine: 4,
-        path: Default::default(),
-        seed: 1,
-    };
-    let set = texsyn::tiles::make_tile_set(&beans, None, &settings, &|_| {})?;
-    let one = texsyn::tiles::assemble(&set.tiles, &vec![vec![1; 4]; 4])?;
-    let index = [[7, 6, 1, 5], [3, 7, 5, 8], [5, 1, 6, 2], [4, 3, 2, 3]].map(Vec::from);
-    let eight = texsyn::tiles::assemble(&set.tiles, &index)?;
-    imaging::save_color(&docs.join("tiles.png"), &side_by_side(&[&one, &eight]))?;
-    println!("ω-tiles: pink marble, 38 tiles of 80² laid 6×4 by the scan-line tiler");
-    let marble = imaging::load_color(&tex.join("pink_marble_color_128.png"))?;
-    let set = texsyn::tiles::omega::OmegaSet::of_size(38)?;
-    let mut evaluator = texsyn::tiles::ais::Evaluator::new(&set, &marble, 80)?;
-    let mut backend = LocalSearch::new(Engine::default());
-    evaluator.load(&mut backend)?;
-    let settings = texsyn::tiles::ais::AisSettings::default();
-    let found =
-        texsyn::tiles::ais::search(&mut evaluator, &mut backend, &marble, &settings, &|_| {})?;
-    let (omega_tiles, _) = texsyn::tiles::ais::build_tiles(&evaluator, &marble, &found.genes);
-    let index: Vec<Vec<usize>> = texsyn::tiles::omega::scan_line_tiling(&set, 6, 4, 2)?
-        .into_iter()
-        .map(|r| r.into_iter().map(|k| k + 1).collect())
-        .collect();
-    let wall = texsyn::tiles::assemble(&omega_tiles, &index)?;
-    imaging::save_color(&docs.join("omega.png"), &side_by_side(&[&marble, &wall]))?;
+    if want("extend") {
+        println!("extend --tileable: brick, shown tiled 2×2");
+        let brick = imaging::load_color(&tex.join("brick_color_96.png"))?;
+        let cfg = Config {
+            tileable: true,
+            ..Config::default()
+        };
+        let extended = run(
+            &brick,
+            Mode::Extend {
+                width: 192,
+                height: 192,
+                position: Position::Center,
+            },
+            cfg,
+        )?;
+        imaging::save_color(
+            &docs.join("extend_tileable.png"),
+            &side_by_side(&[&brick, &tiled(&extended, 2, 2)]),
+        )?;
+    }
+    if want("synth") {
+        println!("synth: leaves and pink marble");
+        let mut row = Vec::new();
+        for name in ["leaves_green_color_161.png", "pink_marble_color_128.png"] {
+            let sample = imaging::load_color(&tex.join(name))?;
+            let out = run(
+                &sample,
+                Mode::Synth {
+                    width: 320,
+                    height: 320,
+                    method: SynthMethod::Grow,
+                },
+                Config::default(),
+            )?;
+            row.push(sample);
+            row.push(out);
+        }
+        let refs: Vec<&ColorImage> = row.iter().collect();
+        imaging::save_color(&docs.join("synth.png"), &side_by_side(&refs))?;
+    }
+    if want("tiles") {
+        println!("tiles: coffee beans, one tile against eight (the paper's Fig. 10 index)");
+        let beans = imaging::load_color(&tex.join("coffee_beans_color_512.png"))?;
+        let settings = texsyn::tiles::TileSetSettings {
+            tiles: 8,
+            min_size: 102,
+            max_size: 128,
+            overlap: 12,
+            belt: 12,
+            margin: 2,
+            candidates: 48,
+            refine: 4,
+            path: Default::default(),
+            seed: 1,
+        };
+        let set = texsyn::tiles::make_tile_set(&beans, None, &settings, &|_| {})?;
+        let one = texsyn::tiles::assemble(&set.tiles, &vec![vec![1; 4]; 4])?;
+        let index = [[7, 6, 1, 5], [3, 7, 5, 8], [5, 1, 6, 2], [4, 3, 2, 3]].map(Vec::from);
+        let eight = texsyn::tiles::assemble(&set.tiles, &index)?;
+        imaging::save_color(&docs.join("tiles.png"), &side_by_side(&[&one, &eight]))?;
+    }
+    if want("omega") {
+        println!("ω-tiles: pink marble, 38 tiles of 80² laid 6×4 by the scan-line tiler");
+        let marble = imaging::load_color(&tex.join("pink_marble_color_128.png"))?;
+        let set = texsyn::tiles::omega::OmegaSet::of_size(38)?;
+        let mut evaluator = texsyn::tiles::ais::Evaluator::new(&set, &marble, 80)?;
+        let mut backend = LocalSearch::new(Engine::default());
+        evaluator.load(&mut backend)?;
+        let settings = texsyn::tiles::ais::AisSettings::default();
+        let found =
+            texsyn::tiles::ais::search(&mut evaluator, &mut backend, &marble, &settings, &|_| {})?;
+        let (omega_tiles, _) = texsyn::tiles::ais::build_tiles(&evaluator, &marble, &found.genes);
+        let index: Vec<Vec<usize>> = texsyn::tiles::omega::scan_line_tiling(&set, 6, 4, 2)?
+            .into_iter()
+            .map(|r| r.into_iter().map(|k| k + 1).collect())
+            .collect();
+        let wall = texsyn::tiles::assemble(&omega_tiles, &index)?;
+        imaging::save_color(&docs.join("omega.png"), &side_by_side(&[&marble, &wall]))?;
+    }
+    if want("morph") {
+        println!("morph: pink marble to leaves, a horizontal ramp, half-reduced");
+        let a = imaging::load_color(&tex.join("pink_marble_color_128.png"))?;
+        let b = imaging::load_color(&tex.join("leaves_green_color_161.png"))?;
+        let (w, h) = (640, 192);
+        let maps = weights::ramp(2, weights::Axis::X, w, h);
+        let settings = ParallelSettings {
+            neighbourhood: Neighbourhood::Half,
+            ..ParallelSettings::default()
+        };
+        let t = std::time::Instant::now();
+        let mut backend = LocalSearch::new(Engine::default());
+        let out =
+            parallel::synth::morph(&[&a, &b], &maps, w, h, &settings, &mut backend, &|_, _| {})?;
+        println!("  {:.2} s", t.elapsed().as_secs_f64());
+        imaging::save_color(
+            &docs.join("morph.png"),
+            &side_by_side(&[&a, &out.image, &b]),
+        )?;
+    }
+    if want("replay") {
+        println!("replay: mossy rock 1024² synthesised, its height, normal and roughness replayed");
+        let shared = root.join("../shared/textures");
+        let map = |k: &str| shared.join(format!("mossy_rock_{k}_1024.png"));
+        let colour = imaging::load_color(&map("color"))?;
+        let side = 384;
+        let t = std::time::Instant::now();
+        let mut backend = LocalSearch::new(Engine::default());
+        let out = parallel::synth::synthesize(
+            &colour,
+            side,
+            side,
+            &ParallelSettings::default(),
+            &mut backend,
+            &|l, n| println!("  level {}/{n}", l + 1),
+        )?;
+        println!("  {:.2} s", t.elapsed().as_secs_f64());
+        let mut row = vec![out.image];
+        for k in ["height", "normal", "roughness"] {
+            let deep = imaging::load_image(&map(k))?;
+            let replayed = deep.rebuild(&out.coords[0].coords, side, side, None)?;
+            row.push(ColorImage::from_vec(
+                side,
+                side,
+                replayed.to_dynamic().into_rgb8().into_raw(),
+            ));
+        }
+        let refs: Vec<&ColorImage> = row.iter().collect();
+        imaging::save_color(&docs.join("replay.png"), &side_by_side(&refs))?;
+    }
     println!("wrote {}", docs.display());
     Ok(())
 }

@@ -14,7 +14,7 @@ use texsyn::tiles::path::{self, ErrorMap, Oscillating, Start};
 use texsyn::tiles::stitch::{self, Belt, Side, StitchSettings};
 use texsyn::tiles::{self, PathSearch, Rect, TileSetSettings};
 
-use common::texture;
+use common::{ok, refused, texture};
 
 fn crop(img: &ColorImage, x: usize, y: usize, w: usize, h: usize) -> ColorImage {
     img.crop(x, y, w, h)
@@ -410,24 +410,6 @@ fn patch_fidelity_matches_a_scalar_reference() {
 
 /// The command line end to end: make, assemble by the paper's index matrix
 /// and at random, compare; bad input is refused with the fix named.
-/// Runs texsyn and asserts it succeeded; its output.
-fn ok(args: &[&str]) -> std::process::Output {
-    let r = common::texsyn(args);
-    assert!(
-        r.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&r.stderr)
-    );
-    r
-}
-
-/// Runs texsyn and asserts it failed; its stderr.
-fn refused(args: &[&str]) -> String {
-    let r = common::texsyn(args);
-    assert!(!r.status.success(), "{args:?} succeeded");
-    String::from_utf8_lossy(&r.stderr).into_owned()
-}
-
 #[test]
 fn tiles_and_compare_on_the_command_line() {
     use common::s;

@@ -1025,3 +1025,63 @@ fn omega_tiles_on_workers_match_the_local_engine() {
     assert_eq!(cluster.1, local.1, "f per generation");
     assert!(cluster.2 == local.2, "tiles differ");
 }
+
+/// The synthesis on coordinates takes its k-coherence sets from the
+/// cluster's top-k search: with 2 local workers the synthesis and a morph
+/// are byte-identical to the local engine's.
+#[test]
+fn parallel_synthesis_and_morph_on_local_workers_match_the_local_engine() {
+    let dir = tempfile::tempdir().unwrap();
+    let texsyn = harness::binary("texsyn");
+    let a = texture_path("pink_marble_color_128.png");
+    let b = texture_path("brick_color_96.png");
+    let run = |args: &[&std::ffi::OsStr], out: &str, cluster: bool| {
+        let mut c = std::process::Command::new(&texsyn);
+        c.args(args)
+            .args(["--size", "160x128", "-q", "-o"])
+            .arg(dir.path().join(out))
+            .arg("--coords")
+            .arg(dir.path().join(format!("c_{out}")));
+        if cluster {
+            c.args(["--local-workers", "2", "--require-cluster"]);
+        }
+        let r = c.output().unwrap();
+        assert!(
+            r.status.success(),
+            "{out}: {}",
+            String::from_utf8_lossy(&r.stderr)
+        );
+    };
+    let synth: Vec<&std::ffi::OsStr> = vec![
+        "synth".as_ref(),
+        a.as_os_str(),
+        "--method".as_ref(),
+        "parallel".as_ref(),
+        "--neighbourhood".as_ref(),
+        "half".as_ref(),
+    ];
+    let morph: Vec<&std::ffi::OsStr> = vec![
+        "morph".as_ref(),
+        a.as_os_str(),
+        b.as_os_str(),
+        "--ramp".as_ref(),
+        "x".as_ref(),
+    ];
+    run(&synth, "synth_local.png", false);
+    run(&synth, "synth_cluster.png", true);
+    run(&morph, "morph_local.png", false);
+    run(&morph, "morph_cluster.png", true);
+    let read = |f: &str| std::fs::read(dir.path().join(f)).unwrap();
+    for f in [
+        "synth_%.png",
+        "c_synth_%.png",
+        "morph_%.png",
+        "c_morph_%_1.png",
+        "c_morph_%_2.png",
+    ] {
+        assert!(
+            read(&f.replace('%', "local")) == read(&f.replace('%', "cluster")),
+            "{f}: the cluster's output differs from the local engine's"
+        );
+    }
+}

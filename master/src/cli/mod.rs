@@ -672,10 +672,7 @@ pub fn run(cli: Cli) -> Result<()> {
             parallel::run_synth(&a.input, &a.size, &c.output, c.copy_map.as_deref(), &args)
         }
         Command::Synth(a) => {
-            ensure!(
-                a.jitter.is_none(),
-                "--jitter belongs to --method parallel"
-            );
+            ensure!(a.jitter.is_none(), "--jitter belongs to --method parallel");
             let mut cfg = Config::try_from(&a.common)?;
             let (width, height) = parse_size(&a.size)?;
             let mut level_files = Vec::new();

@@ -206,7 +206,29 @@ pub fn run_morph(a: &MorphArgs) -> Result<()> {
     };
     check_output(&a.output, None, size)?;
     for p in &coord_paths {
-        check_output(p, None, size)?;
+        check_output(p, Some(p), size)?;
+    }
+    // Outputs never name an input or each other.
+    let outputs: Vec<&Path> = std::iter::once(a.output.as_path())
+        .chain(coord_paths.iter().map(PathBuf::as_path))
+        .collect();
+    let same = |x: &Path, y: &Path| {
+        x == y || (x.canonicalize().is_ok() && x.canonicalize().ok() == y.canonicalize().ok())
+    };
+    for (i, o) in outputs.iter().enumerate() {
+        for input in a.exemplars.iter().chain(&a.weight_maps) {
+            ensure!(
+                !same(o, input),
+                "the output {} is the input {}; write the result to another file so the input is kept",
+                o.display(),
+                input.display()
+            );
+        }
+        ensure!(
+            !outputs[..i].iter().any(|p| same(p, o)),
+            "{} is named twice among -o and --coords; give each output its own file",
+            o.display()
+        );
     }
     let images = a
         .exemplars
@@ -226,7 +248,9 @@ pub fn run_morph(a: &MorphArgs) -> Result<()> {
         }
         (None, true) if m == 1 => vec![vec![1.0; size.0 * size.1]],
         (None, true) => {
-            anyhow::bail!("a morph of {m} exemplars needs --weight-maps WA.png,WB.png,... or --ramp x|y")
+            anyhow::bail!(
+                "a morph of {m} exemplars needs --weight-maps WA.png,WB.png,... or --ramp x|y"
+            )
         }
     };
     let refs: Vec<&ColorImage> = images.iter().collect();
@@ -284,8 +308,14 @@ pub fn run_replay(a: &ReplayArgs) -> Result<()> {
 
 /// `FILE_j.ext` from `FILE.ext`.
 fn numbered(p: &Path, j: usize) -> PathBuf {
-    let stem = p.file_stem().map(|s| s.to_string_lossy()).unwrap_or_default();
-    let ext = p.extension().map(|s| s.to_string_lossy()).unwrap_or_default();
+    let stem = p
+        .file_stem()
+        .map(|s| s.to_string_lossy())
+        .unwrap_or_default();
+    let ext = p
+        .extension()
+        .map(|s| s.to_string_lossy())
+        .unwrap_or_default();
     p.with_file_name(format!("{stem}_{j}.{ext}"))
 }
 
@@ -293,6 +323,7 @@ fn check_output(output: &Path, coords: Option<&Path>, size: (usize, usize)) -> R
     imaging::check_writable(output)?;
     imaging::check_output_size(output, size.0, size.1)?;
     if let Some(p) = coords {
+        imaging::check_coord_map_path(p)?;
         imaging::check_writable(p)?;
     }
     Ok(())

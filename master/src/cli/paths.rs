@@ -66,6 +66,7 @@ fn is_level_file(name: &OsStr) -> bool {
 pub(super) fn check_distinct(inputs: &[(&str, &Path)], common: &Common) -> Result<()> {
     let mut outputs: Vec<(&str, &Path)> = vec![("-o", &common.output)];
     if let Some(p) = &common.copy_map {
+        crate::imaging::check_coord_map_path(p)?;
         outputs.push(("--copy-map", p));
     }
     if let Some(p) = &common.report {

@@ -427,7 +427,11 @@ async fn ask_chunk(
 /// with [`Hit::NONE`]: each list must be as long as the range allows
 /// (`min(k, range length)`), sorted by (distance, index) without repeats, and
 /// stay inside the range.
-pub(crate) fn flat_topk(lists: &[Vec<Hit>], k: usize, range: &Range<u64>) -> Result<Vec<Hit>, String> {
+pub(crate) fn flat_topk(
+    lists: &[Vec<Hit>],
+    k: usize,
+    range: &Range<u64>,
+) -> Result<Vec<Hit>, String> {
     let want = (k as u64).min(range.end.saturating_sub(range.start)) as usize;
     let mut out = Vec::with_capacity(lists.len() * k);
     for l in lists {

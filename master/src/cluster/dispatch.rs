@@ -221,9 +221,9 @@ impl ClusterSearch {
             self.level_prune.add(&prune);
             hits
         } else {
-            let lists = self
-                .engine
-                .search_topk(space, range.clone(), batch, &level.data.params, k)?;
+            let lists =
+                self.engine
+                    .search_topk(space, range.clone(), batch, &level.data.params, k)?;
             conn::flat_topk(&lists, k, &range).map_err(anyhow::Error::msg)?
         };
         self.master.stats.search_seconds += t.elapsed().as_secs_f64();

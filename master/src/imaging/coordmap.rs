@@ -17,16 +17,7 @@ pub fn save_coord_map(path: &Path, width: usize, height: usize, coords: &[[u32; 
         width * height,
         coords.len()
     );
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    ensure!(
-        ext == "png",
-        "coordinate map {} must be a .png (16-bit RGB holds the coordinates exactly)",
-        path.display()
-    );
+    check_coord_map_path(path)?;
     let mut raw = Vec::with_capacity(coords.len() * 3);
     for &[x, y] in coords {
         let fit = |v: u32| u16::try_from(v).context("a coordinate above 65535 does not fit");
@@ -44,6 +35,22 @@ pub fn save_coord_map(path: &Path, width: usize, height: usize, coords: &[[u32; 
         )
         .context("cannot encode the coordinate map")?;
     super::save_bytes(path, &png)
+}
+
+/// Refuses a coordinate-map path that is not a `.png` (checked before a run,
+/// so no work is lost to a bad name).
+pub fn check_coord_map_path(path: &Path) -> Result<()> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    ensure!(
+        ext == "png",
+        "coordinate map {} must be a .png (16-bit RGB holds the coordinates exactly); name it with .png",
+        path.display()
+    );
+    Ok(())
 }
 
 /// The 16-bit samples in the byte order the PNG encoder takes (native).

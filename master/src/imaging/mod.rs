@@ -37,7 +37,7 @@ mod io;
 mod tests;
 
 pub use atomic::check_writable_any;
-pub use coordmap::{load_coord_map, save_coord_map};
+pub use coordmap::{check_coord_map_path, load_coord_map, save_coord_map};
 pub use deep::{Channels, DeepImage, Depth, PixelFormat, SearchView};
 pub use io::{
     check_output_format, check_output_size, check_writable, load_alpha_mask, load_color,

@@ -22,14 +22,20 @@ pub const MIN_VARIANCE: f64 = 0.95;
 /// The 5×5 RGB window around `(x, y)`, wrapping at the edges (exemplars are
 /// treated as toroidal, as the synthesis wraps coordinates).
 pub fn descriptor(img: &ColorImage, x: usize, y: usize) -> Vec<f64> {
+    descriptor_spaced(img, x, y, 1)
+}
+
+/// The 5×5 window around `(x, y)` with its samples `step` pixels apart.
+pub fn descriptor_spaced(img: &ColorImage, x: usize, y: usize, step: usize) -> Vec<f64> {
     let r = (WINDOW / 2) as isize;
+    let step = step as isize;
     let (w, h) = (img.width as isize, img.height as isize);
     let mut out = Vec::with_capacity(WINDOW * WINDOW * 3);
     for dy in -r..=r {
         for dx in -r..=r {
             let px = img.get(
-                (x as isize + dx).rem_euclid(w) as usize,
-                (y as isize + dy).rem_euclid(h) as usize,
+                (x as isize + dx * step).rem_euclid(w) as usize,
+                (y as isize + dy * step).rem_euclid(h) as usize,
             );
             out.extend(px.iter().map(|&c| f64::from(c)));
         }

@@ -4,12 +4,14 @@
 //! search, so the correction only compares a handful of candidates per pixel.
 //!
 //! The search goes through [`SearchBackend`], locally or on the cluster. The
-//! engine compares square windows of a plane, so each appearance vector (8 to
-//! 9 components, quantised to bytes) is laid out as one 3×3 cell of a plane
-//! and searched as a 3×3 window: the window's distance is the vectors'.
+//! engine compares square windows of a plane, so each appearance vector
+//! (quantised to bytes) is laid out as one odd square cell of a plane, 3×3
+//! for up to 9 components, and searched as a window of that size: the
+//! window's distance is the vectors'.
 //!
-//! For large exemplars the sets are computed on a grid of stride `s` (so at
-//! most [`MAX_GRID`] pixels search each other), and pixel `q` takes the sets
+//! For large exemplars and coarse levels the sets are computed on a grid of
+//! stride `s` (at most [`MAX_GRID`] pixels search each other, and `s ≥ h/2`
+//! on a level of step `h`), and pixel `q` takes the sets
 //! of its grid pixel `g` shifted by `q − g`, the shift k-coherence itself
 //! uses. Pixel `q` is always its own first candidate, and a candidate
 //! within 2 pixels of one already taken is passed over.
@@ -38,11 +40,13 @@ pub struct Candidates {
 impl Candidates {
     /// Searches the sets of a `width`×`height` level whose appearance vectors
     /// (`dims` each, row by row) are `appearance`. `level` names the level to
-    /// the backend.
+    /// the backend. The grid stride is at least `min_stride`: on a stack
+    /// level blurred over `h` pixels, pixels less than `h/2` apart look
+    /// alike, so a coarse level needs few grid pixels.
     pub fn search(
         appearance: &[f32],
-        width: usize,
-        height: usize,
+        (width, height): (usize, usize),
+        min_stride: usize,
         dims: usize,
         k: usize,
         level: usize,
@@ -50,7 +54,9 @@ impl Candidates {
     ) -> Result<Self> {
         ensure!((1..=MAX_K).contains(&k), "k must be in 1..={MAX_K}");
         ensure!(appearance.len() == width * height * dims, "appearance size");
-        let stride = (((width * height) as f64 / MAX_GRID as f64).sqrt().ceil() as usize).max(1);
+        let stride = (((width * height) as f64 / MAX_GRID as f64).sqrt().ceil() as usize)
+            .max(min_stride)
+            .clamp(1, width.min(height));
         let (grid_w, grid_h) = (width.div_ceil(stride), height.div_ceil(stride));
         // Cells: the smallest odd square that holds the vector.
         let cell = {
@@ -111,7 +117,10 @@ impl Candidates {
                     hits.iter()
                         .map(|h| {
                             let g = h.index as usize;
-                            [((g % grid_w) * stride) as u32, ((g / grid_w) * stride) as u32]
+                            [
+                                ((g % grid_w) * stride) as u32,
+                                ((g / grid_w) * stride) as u32,
+                            ]
                         })
                         .collect(),
                 );
@@ -199,7 +208,7 @@ mod tests {
             })
             .collect();
         let mut backend = LocalSearch::new(Engine::default());
-        let c = Candidates::search(&app, w, h, dims, 4, 0, &mut backend).unwrap();
+        let c = Candidates::search(&app, (w, h), 1, dims, 4, 0, &mut backend).unwrap();
         assert_eq!(c.stride(), 1);
         let (lo, hi) = app
             .iter()

@@ -17,7 +17,7 @@
 use anyhow::{ensure, Result};
 use rayon::prelude::*;
 
-use super::appearance::{descriptor, Pca};
+use super::appearance::{descriptor_spaced, Pca};
 use super::candidates::Candidates;
 use super::coords::CoordMap;
 use crate::imaging::ColorImage;
@@ -121,12 +121,21 @@ struct ExemplarLevel {
 }
 
 impl ExemplarLevel {
+    /// The exemplar at the stack level of step `h`: blurred by a box of
+    /// width about `h`, and each pixel's appearance taken from its 5×5
+    /// window with samples `h` pixels apart. That window is what a pyramid
+    /// level's own 5×5 window covers, so a coarse level's appearance
+    /// describes the structure at its scale (with adjacent samples of the
+    /// blurred image it would hold little more than the blur, and bricks
+    /// break up into rubble).
     fn build(img: &ColorImage, h: usize, pca: &Pca, points: &[Vec<[i32; 2]>]) -> Self {
         let blur = blurred(img, h);
         let dims = pca.components.len();
         let projected: Vec<f64> = (0..img.width * img.height)
             .into_par_iter()
-            .flat_map_iter(|i| pca.project(&descriptor(&blur, i % img.width, i / img.width)))
+            .flat_map_iter(|i| {
+                pca.project(&descriptor_spaced(&blur, i % img.width, i / img.width, h))
+            })
             .collect();
         // Centred on the exemplar's own mean (see `morph`).
         let mut mean = vec![0.0f64; dims];
@@ -154,7 +163,11 @@ impl ExemplarLevel {
                 .into_par_iter()
                 .flat_map_iter(|i| {
                     let mut v = Vec::with_capacity(ex.stride);
-                    ex.gather([(i % ex.width) as u32, (i / ex.width) as u32], points, &mut v);
+                    ex.gather(
+                        [(i % ex.width) as u32, (i / ex.width) as u32],
+                        points,
+                        &mut v,
+                    );
                     v
                 })
                 .collect();
@@ -316,6 +329,7 @@ pub fn morph(
     let m = exemplars.len();
     let mut maps: Vec<Option<CoordMap>> = vec![None; m];
     let mut strides = Vec::with_capacity(levels);
+    let mut blend = Vec::new();
     for level in 0..levels {
         progress(level, levels);
         let h = 1usize << (levels - 1 - level);
@@ -326,12 +340,16 @@ pub fn morph(
             .collect();
         let mut ex = Vec::with_capacity(m);
         let mut cands = Vec::with_capacity(m);
+        let (mut t_build, mut t_search) = (0.0, 0.0);
         for e in exemplars {
+            let t = std::time::Instant::now();
             let level_ex = ExemplarLevel::build(e, h, &pca, &points);
+            t_build += t.elapsed().as_secs_f64();
+            let t = std::time::Instant::now();
             let c = Candidates::search(
                 &level_ex.appearance,
-                level_ex.width,
-                level_ex.height,
+                (level_ex.width, level_ex.height),
+                h / 2,
                 level_ex.dims,
                 s.k,
                 level,
@@ -342,6 +360,7 @@ pub fn morph(
             }
             ex.push(level_ex);
             cands.push((c.k(), c.table()));
+            t_search += t.elapsed().as_secs_f64();
         }
         let r = *s.jitter.get(level).or(s.jitter.last()).unwrap_or(&0.0);
         let mut level_maps: Vec<CoordMap> = Vec::with_capacity(m);
@@ -354,12 +373,21 @@ pub fn morph(
             map.jitter(dims, h as u32, r, level as u32, exemplar_seed(s.seed, j));
             level_maps.push(map);
         }
+        let t = std::time::Instant::now();
+        let mut lv = Levels::of(&level_maps);
         for _ in 0..s.passes {
             for sub in [(0, 0), (1, 1), (1, 0), (0, 1)] {
-                level_maps = correct(&level_maps, &level_weights, &ex, &points, &cands, sub);
+                lv = correct(&lv, &level_weights, &ex, &points, &cands, sub, &mut blend);
             }
         }
-        for (slot, map) in maps.iter_mut().zip(level_maps) {
+        tracing::debug!(
+            level,
+            exemplar_levels = t_build,
+            candidate_sets = t_search,
+            correction = t.elapsed().as_secs_f64(),
+            "level timings (s)"
+        );
+        for (slot, map) in maps.iter_mut().zip(lv.into_maps()) {
             *slot = Some(map);
         }
     }
@@ -430,125 +458,190 @@ fn downsample(w: &[f32], width: usize, height: usize, h: usize) -> Vec<f32> {
     out
 }
 
-/// One correction sub-pass: the pixels with `(x % 2, y % 2) == sub` take, in
-/// every exemplar's level, the candidate whose neighbourhood best matches
-/// the blended neighbourhood around them; the others keep theirs. Every pixel
-/// reads the levels as they were before the sub-pass, so the result does
-/// not depend on threads.
+/// The levels of all exemplars at one synthesis level, interleaved: pixel
+/// `i` of exemplar `e` is `coords[i * m + e]`, so a pixel's `m` coordinates
+/// sit together and a row of the output is one slice.
+struct Levels {
+    width: usize,
+    height: usize,
+    m: usize,
+    coords: Vec<[u32; 2]>,
+}
+
+impl Levels {
+    fn of(maps: &[CoordMap]) -> Self {
+        let (width, height, m) = (maps[0].width, maps[0].height, maps.len());
+        let coords = (0..width * height)
+            .flat_map(|i| maps.iter().map(move |c| c.coords[i]))
+            .collect();
+        Self {
+            width,
+            height,
+            m,
+            coords,
+        }
+    }
+
+    fn into_maps(self) -> Vec<CoordMap> {
+        (0..self.m)
+            .map(|e| CoordMap {
+                width: self.width,
+                height: self.height,
+                coords: self
+                    .coords
+                    .iter()
+                    .skip(e)
+                    .step_by(self.m)
+                    .copied()
+                    .collect(),
+            })
+            .collect()
+    }
+}
+
+/// C(i, X) of eq. 2 for every pixel: the weighted appearance of the
+/// exemplars at the pixel's coordinates, into `blend` (`dims` per pixel).
+fn blend_appearance(lv: &Levels, weights: &[Vec<f32>], ex: &[ExemplarLevel], blend: &mut Vec<f32>) {
+    let dims = ex[0].dims;
+    blend.resize(lv.width * lv.height * dims, 0.0);
+    blend
+        .par_chunks_mut(dims)
+        .zip(lv.coords.par_chunks(lv.m))
+        .enumerate()
+        .for_each(|(i, (acc, cs))| {
+            acc.fill(0.0);
+            for ((&[x, y], w), e) in cs.iter().zip(weights).zip(ex) {
+                for (a, v) in acc.iter_mut().zip(e.at(x, y)) {
+                    *a += w[i] * v;
+                }
+            }
+        });
+}
+
+/// One correction sub-pass (eq. 2 and 3): the pixels with
+/// `(x % 2, y % 2) == sub` take, in every exemplar's level, the k-coherence
+/// candidate whose neighbourhood best matches the blended neighbourhood
+/// around them; the others keep theirs. Every pixel reads the levels as they
+/// were before the sub-pass, so the result does not depend on threads.
+#[allow(clippy::too_many_arguments)]
 fn correct(
-    maps: &[CoordMap],
+    lv: &Levels,
     weights: &[Vec<f32>],
     ex: &[ExemplarLevel],
     points: &[Vec<[i32; 2]>],
     cands: &[(usize, Vec<[u32; 2]>)],
     sub: (usize, usize),
-) -> Vec<CoordMap> {
-    let (width, height) = (maps[0].width, maps[0].height);
+    blend: &mut Vec<f32>,
+) -> Levels {
+    blend_appearance(lv, weights, ex, blend);
+    let blend = &*blend;
+    let (width, height, m) = (lv.width, lv.height, lv.m);
     let dims = ex[0].dims;
-    // C(i, X) of eq. 2: the weighted appearance of every pixel.
-    let blend: Vec<f32> = (0..width * height)
-        .into_par_iter()
-        .flat_map_iter(|i| {
-            let mut acc = vec![0.0f32; dims];
-            for ((map, w), e) in maps.iter().zip(weights).zip(ex) {
-                let [x, y] = map.coords[i];
-                for (a, v) in acc.iter_mut().zip(e.at(x, y)) {
-                    *a += w[i] * v;
-                }
-            }
-            acc
-        })
-        .collect();
     let (w, hh) = (width as i64, height as i64);
-    let m = maps.len();
-    let mut chosen = vec![[0u32; 2]; width * height * m];
-    chosen.par_chunks_mut(m).enumerate().for_each_init(
-            || (Vec::new(), Vec::new(), Vec::new()),
-            |(want, buf, seen), (i, slot)| {
-                let (x, y) = ((i % width) as i64, (i / width) as i64);
-                if (x as usize % 2, y as usize % 2) != sub {
-                    for (o, mp) in slot.iter_mut().zip(maps) {
-                        *o = mp.coords[i];
-                    }
-                    return;
-                }
-                // N_S(P), eq. 2: the blend at the neighbourhood's points.
-                want.clear();
-                for pt in points {
-                    let start = want.len();
-                    want.extend(std::iter::repeat_n(0.0f32, dims));
-                    let share = 1.0 / pt.len() as f32;
-                    for o in pt {
-                        let j = (y + i64::from(o[1])).rem_euclid(hh) as usize * width
-                            + (x + i64::from(o[0])).rem_euclid(w) as usize;
-                        for (a, v) in want[start..].iter_mut().zip(&blend[j * dims..(j + 1) * dims])
-                        {
-                            *a += v * share;
+    let mut out = lv.coords.clone();
+    out.par_chunks_mut(width * m)
+        .enumerate()
+        .filter(|(y, _)| y % 2 == sub.1)
+        .for_each_init(
+            || (Vec::new(), Vec::new()),
+            |(want, buf), (y, row)| {
+                let y = y as i64;
+                for x in (sub.0..width).step_by(2) {
+                    let x = x as i64;
+                    // N_S(P), eq. 2: the blend at the neighbourhood's points.
+                    want.clear();
+                    for pt in points {
+                        let start = want.len();
+                        want.extend(std::iter::repeat_n(0.0f32, dims));
+                        let share = 1.0 / pt.len() as f32;
+                        for o in pt {
+                            let j = (y + i64::from(o[1])).rem_euclid(hh) as usize * width
+                                + (x + i64::from(o[0])).rem_euclid(w) as usize;
+                            for (a, v) in want[start..]
+                                .iter_mut()
+                                .zip(&blend[j * dims..(j + 1) * dims])
+                            {
+                                *a += v * share;
+                            }
                         }
                     }
-                }
-                for (e, out) in slot.iter_mut().enumerate() {
-                        let (map, exl, (k, table)) = (&maps[e], &ex[e], &cands[e]);
+                    for (e, (exl, (k, table))) in ex.iter().zip(cands).enumerate() {
+                        let i = y as usize * width + x as usize;
                         let (ew, eh) = (exl.width as i64, exl.height as i64);
-                        let mut best = (f32::INFINITY, map.coords[i]);
-                        // Coherent neighbours share candidates: each is scored once.
-                        seen.clear();
+                        let mut best = (f32::INFINITY, lv.coords[i * m + e]);
+                        // Candidates of the 3×3 neighbours, shifted back to P
+                        // (k-coherence). Coherent neighbours shift back to the
+                        // same exemplar pixel: each such base is taken once. A
+                        // candidate seen twice scores the same twice and the
+                        // ties rule is order-free, so candidates are not
+                        // deduplicated.
+                        let mut bases = [[u32::MAX; 2]; 9];
+                        let mut nb = 0;
                         for dy in -1..=1i64 {
                             for dx in -1..=1i64 {
-                                let n = map.get(
-                                    (x + dx).rem_euclid(w) as usize,
-                                    (y + dy).rem_euclid(hh) as usize,
-                                );
+                                let ni = (y + dy).rem_euclid(hh) as usize * width
+                                    + (x + dx).rem_euclid(w) as usize;
+                                let n = lv.coords[ni * m + e];
                                 let base = [
                                     (i64::from(n[0]) - exl.h * dx).rem_euclid(ew) as u32,
                                     (i64::from(n[1]) - exl.h * dy).rem_euclid(eh) as u32,
                                 ];
-                                let at = (base[1] as usize * exl.width + base[0] as usize) * k;
-                                for &q in &table[at..at + k] {
-                                    if seen.contains(&q) {
-                                        continue;
-                                    }
-                                    seen.push(q);
-                                    let have = exl.neighbourhood(q, points, buf);
-                                    let Some(d) = ssd_below(want, have, best.0) else {
-                                        continue;
-                                    };
-                                    // Ties go to the smaller coordinate, whatever the order.
-                                    if d < best.0
-                                        || (d == best.0 && (q[1], q[0]) < (best.1[1], best.1[0]))
-                                    {
-                                        best = (d, q);
-                                    }
+                                if !bases[..nb].contains(&base) {
+                                    bases[nb] = base;
+                                    nb += 1;
                                 }
                             }
                         }
-                        *out = best.1;
+                        for base in &bases[..nb] {
+                            let at = (base[1] as usize * exl.width + base[0] as usize) * k;
+                            for &q in &table[at..at + k] {
+                                let have = exl.neighbourhood(q, points, buf);
+                                let Some(d) = ssd_below(want, have, best.0) else {
+                                    continue;
+                                };
+                                // Ties go to the smaller coordinate, whatever the order.
+                                if d < best.0
+                                    || (d == best.0 && (q[1], q[0]) < (best.1[1], best.1[0]))
+                                {
+                                    best = (d, q);
+                                }
+                            }
+                        }
+                        row[x as usize * m + e] = best.1;
+                    }
                 }
             },
         );
-    (0..m)
-        .map(|e| CoordMap {
-            width,
-            height,
-            coords: chosen.chunks_exact(m).map(|c| c[e]).collect(),
-        })
-        .collect()
+    Levels {
+        width,
+        height,
+        m,
+        coords: out,
+    }
 }
 
-/// The sum of squared differences, or `None` as soon as it exceeds `bound`
-/// (the sum is taken in the same order either way, so a complete sum is
-/// the same number).
+/// The sum of squared differences, or `None` as soon as it exceeds `bound`.
+/// Eight lanes at a time (one AVX register), summed in a fixed order, so a
+/// complete sum is the same number whatever the bound.
 fn ssd_below(a: &[f32], b: &[f32], bound: f32) -> Option<f32> {
     let mut d = 0.0f32;
-    for (ca, cb) in a.chunks(8).zip(b.chunks(8)) {
-        for (x, y) in ca.iter().zip(cb) {
-            d += (x - y) * (x - y);
+    let (mut ca, mut cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    for (x, y) in (&mut ca).zip(&mut cb) {
+        let mut lanes = [0.0f32; 8];
+        for l in 0..8 {
+            let t = x[l] - y[l];
+            lanes[l] = t * t;
         }
+        d += ((lanes[0] + lanes[4]) + (lanes[1] + lanes[5]))
+            + ((lanes[2] + lanes[6]) + (lanes[3] + lanes[7]));
         if d > bound {
             return None;
         }
     }
-    Some(d)
+    for (x, y) in ca.remainder().iter().zip(cb.remainder()) {
+        d += (x - y) * (x - y);
+    }
+    (d <= bound).then_some(d)
 }
 
 #[cfg(test)]
@@ -601,7 +694,10 @@ mod tests {
                         let s: u32 = (-2..=2)
                             .map(|dx| {
                                 u32::from(
-                                    ex.get((x + dx).rem_euclid(w) as usize, (y + dy).rem_euclid(h) as usize)[c],
+                                    ex.get(
+                                        (x + dx).rem_euclid(w) as usize,
+                                        (y + dy).rem_euclid(h) as usize,
+                                    )[c],
                                 )
                             })
                             .sum();

@@ -31,8 +31,16 @@ pub fn ramp(m: usize, axis: Axis, width: usize, height: usize) -> Vec<Vec<f32>> 
                     if m == 1 {
                         return 1.0;
                     }
-                    let p = if axis == Axis::X { i % width } else { i / width };
-                    let t = if len > 1 { p as f64 / (len - 1) as f64 } else { 0.0 };
+                    let p = if axis == Axis::X {
+                        i % width
+                    } else {
+                        i / width
+                    };
+                    let t = if len > 1 {
+                        p as f64 / (len - 1) as f64
+                    } else {
+                        0.0
+                    };
                     let d = (t * (m - 1) as f64 - j as f64).abs();
                     (1.0 - d).max(0.0) as f32
                 })

@@ -24,6 +24,24 @@ pub fn texsyn(args: &[&str]) -> Output {
         .expect("run texsyn")
 }
 
+/// Runs texsyn and asserts it succeeded; its output.
+pub fn ok(args: &[&str]) -> Output {
+    let r = texsyn(args);
+    assert!(
+        r.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    r
+}
+
+/// Runs texsyn and asserts it failed; its stderr.
+pub fn refused(args: &[&str]) -> String {
+    let r = texsyn(args);
+    assert!(!r.status.success(), "{args:?} succeeded");
+    String::from_utf8_lossy(&r.stderr).into_owned()
+}
+
 /// A path as a command-line argument.
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
