@@ -17,7 +17,7 @@
 //! within 2 pixels of one already taken is passed over.
 
 use anyhow::{ensure, Result};
-use texsyn_engine::{Geometry, Metric, Params, Plane, Positions, QueryBatch, Sample, Weights};
+use texsyn_engine::{Geometry, Metric, Params, Plane, QueryBatch, Sample, Weights};
 
 use crate::search::{LevelData, SearchBackend};
 
@@ -68,9 +68,13 @@ impl Candidates {
             .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
         let scale = if hi > lo { 255.0 / (hi - lo) } else { 0.0 };
         let quantise = |v: f32| ((v - lo) * scale).round().clamp(0.0, 255.0) as u8;
-        let (pw, ph) = (grid_w * cell, grid_h * cell);
+        // Cells sit `cell + 1` apart with a line of undefined pixels between
+        // them, so the only windows clear of undefined pixels, the reference
+        // positions a worker derives from the plane, are the cells.
+        let pitch = cell + 1;
+        let (pw, ph) = (grid_w * pitch, grid_h * pitch);
         let mut pixels = vec![0u8; pw * ph];
-        let mut positions = Positions::new();
+        let mut defined = vec![0u8; pw * ph];
         let mut cells = Vec::with_capacity(grid_w * grid_h);
         for gy in 0..grid_h {
             for gx in 0..grid_w {
@@ -81,14 +85,26 @@ impl Candidates {
                     *slot = quantise(a);
                 }
                 for r in 0..cell {
-                    let at = (gy * cell + r) * pw + gx * cell;
+                    let at = (gy * pitch + r) * pw + gx * pitch;
                     pixels[at..at + cell].copy_from_slice(&c[r * cell..(r + 1) * cell]);
+                    defined[at..at + cell].fill(1);
                 }
-                positions.push((gx * cell + cell / 2) as u32, (gy * cell + cell / 2) as u32);
                 cells.push(c);
             }
         }
         let geometry = Geometry::new(cell, 0)?;
+        let sample = Sample {
+            fine: Plane::new(pw, ph, &pixels, Some(&defined))?,
+            parent: None,
+        };
+        let positions = texsyn_engine::plane::reference_positions(&sample, &geometry)?;
+        // Row by row, so reference g is grid pixel (g mod grid_w, g / grid_w).
+        ensure!(
+            positions.len() == cells.len(),
+            "{} cells gave {} reference windows",
+            cells.len(),
+            positions.len()
+        );
         backend.load_level(&LevelData {
             level,
             geometry,
@@ -96,10 +112,7 @@ impl Candidates {
                 metric: Metric::L2,
                 weights: Weights::new(1, 1)?,
             },
-            sample: Sample {
-                fine: Plane::new(pw, ph, &pixels, None)?,
-                parent: None,
-            },
+            sample,
             positions: &positions,
             levels: level + 1,
             expected_queries: cells.len() as u64,
