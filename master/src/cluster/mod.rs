@@ -211,6 +211,19 @@ pub struct ClusterSearch {
 }
 
 impl ClusterSearch {
+    /// Checks that `batch` has the loaded level's layout and gives it the
+    /// next batch number.
+    fn number_batch(&mut self, batch: &QueryBatch) -> Result<u64> {
+        let level = self.level.as_ref().context("search before load_level")?;
+        if batch.layout() != level.layout() {
+            bail!("the queries do not have the loaded level's layout");
+        }
+        let batch_id = self.next_batch;
+        self.next_batch += 1;
+        self.current_batch = Some(batch_id);
+        Ok(batch_id)
+    }
+
     /// Connects to the workers, checks their protocol version and calibrates
     /// them. Unreachable workers are retried at each level; when none is
     /// reachable the run goes on locally (with a warning), unless
@@ -321,13 +334,8 @@ impl SearchBackend for ClusterSearch {
         if batch.is_empty() {
             return Ok(Vec::new());
         }
+        let batch_id = self.number_batch(batch)?;
         let level = self.level.as_ref().context("search before load_level")?;
-        if batch.layout() != level.layout() {
-            bail!("the queries do not have the loaded level's layout");
-        }
-        let batch_id = self.next_batch;
-        self.next_batch += 1;
-        self.current_batch = Some(batch_id);
         let span = tracing::debug_span!(
             "batch",
             level = level.data.level,
@@ -357,13 +365,7 @@ impl SearchBackend for ClusterSearch {
         if batch.is_empty() {
             return Ok(Vec::new());
         }
-        let level = self.level.as_ref().context("search before load_level")?;
-        if batch.layout() != level.layout() {
-            bail!("the queries do not have the loaded level's layout");
-        }
-        let batch_id = self.next_batch;
-        self.next_batch += 1;
-        self.current_batch = Some(batch_id);
+        let batch_id = self.number_batch(batch)?;
         let span = tracing::debug_span!("top-k batch", batch = batch_id, queries = batch.len(), k);
         let _enter = span.enter();
         let flat = self.search_batch(&batch.without_hints(), batch_id, k)?;

@@ -126,12 +126,7 @@ impl Pca {
 mod tests {
     use super::*;
 
-    fn texture(name: &str) -> ColorImage {
-        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../assets/textures")
-            .join(name);
-        crate::imaging::load_color(&p).unwrap()
-    }
+    use crate::parallel::tests::texture;
 
     #[test]
     fn the_kept_components_explain_at_least_95_percent() {

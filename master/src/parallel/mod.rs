@@ -14,3 +14,16 @@ pub mod candidates;
 pub mod coords;
 pub mod synth;
 pub mod weights;
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use crate::imaging::ColorImage;
+
+    /// A bundled texture (`assets/textures`) as 8-bit RGB.
+    pub fn texture(name: &str) -> ColorImage {
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../assets/textures")
+            .join(name);
+        crate::imaging::load_color(&p).unwrap()
+    }
+}

@@ -341,7 +341,7 @@ pub fn morph(
         let mut ex = Vec::with_capacity(m);
         let mut cands = Vec::with_capacity(m);
         let (mut t_build, mut t_search) = (0.0, 0.0);
-        for e in exemplars {
+        for (j, e) in exemplars.iter().enumerate() {
             let t = std::time::Instant::now();
             let level_ex = ExemplarLevel::build(e, h, &pca, &points);
             t_build += t.elapsed().as_secs_f64();
@@ -352,7 +352,9 @@ pub fn morph(
                 h / 2,
                 level_ex.dims,
                 s.k,
-                level,
+                // Each exemplar's level is a level of its own to the backend
+                // (a worker keeps one level per number).
+                level * m + j,
                 backend,
             )?;
             if cands.is_empty() {
@@ -648,12 +650,7 @@ fn ssd_below(a: &[f32], b: &[f32], bound: f32) -> Option<f32> {
 mod tests {
     use super::*;
 
-    fn texture(name: &str) -> ColorImage {
-        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../assets/textures")
-            .join(name);
-        crate::imaging::load_color(&p).unwrap()
-    }
+    use crate::parallel::tests::texture;
 
     #[test]
     fn every_output_pixel_is_its_coordinate_s_exemplar_pixel_and_threads_do_not_matter() {
