@@ -194,7 +194,10 @@ fn main() -> Result<()> {
             &colour,
             side,
             side,
-            &ParallelSettings::default(),
+            &ParallelSettings {
+                neighbourhood: Neighbourhood::Full(7),
+                ..ParallelSettings::default()
+            },
             &mut backend,
             &|l, n| println!("  level {}/{n}", l + 1),
         )?;
