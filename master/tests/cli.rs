@@ -637,6 +637,7 @@ fn output_paths_are_checked_before_any_work() {
         &webp,
         &["WebP", "16383", "16384x16", ".png"],
     );
+    // A copy map is an exact 16-bit PNG; another format is refused up front.
     let tif = d.join("map.webp");
     refuses(
         &[
@@ -650,7 +651,7 @@ fn output_paths_are_checked_before_any_work() {
             s(&tif),
         ],
         &tif,
-        &["map.webp", "16383"],
+        &["map.webp", "coordinate map", ".png"],
     );
     assert!(
         start.elapsed() < std::time::Duration::from_secs(10),
