@@ -357,15 +357,18 @@ fn bad_input_is_refused_with_the_fix_named() {
         s(&d("c.png")),
     ]);
     grey(&d("small.png"), 16, 16, |x, _| x as u8);
+    // The good map before the bad one is not written either.
     let e = refused(&[
         "replay",
         "--coords",
         s(&d("c.png")),
+        s(&b),
         s(&d("small.png")),
         "-o",
         s(&d("r")),
     ]);
     assert!(e.contains("exemplar's size"), "{e}");
+    assert!(!d("r").join("pink_marble_color_128.png").exists());
     let e = refused(&[
         "replay",
         "--coords",

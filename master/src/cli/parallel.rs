@@ -206,30 +206,20 @@ pub fn run_morph(a: &MorphArgs) -> Result<()> {
     };
     check_output(&a.output, None, size)?;
     for p in &coord_paths {
-        check_output(p, Some(p), size)?;
+        imaging::check_coord_map_path(p)?;
+        imaging::check_writable(p)?;
     }
     // Outputs never name an input or each other.
-    let outputs: Vec<&Path> = std::iter::once(a.output.as_path())
-        .chain(coord_paths.iter().map(PathBuf::as_path))
+    let outputs: Vec<(&str, &Path)> = std::iter::once(("-o", a.output.as_path()))
+        .chain(coord_paths.iter().map(|p| ("--coords", p.as_path())))
         .collect();
-    let same = |x: &Path, y: &Path| {
-        x == y || (x.canonicalize().is_ok() && x.canonicalize().ok() == y.canonicalize().ok())
-    };
-    for (i, o) in outputs.iter().enumerate() {
-        for input in a.exemplars.iter().chain(&a.weight_maps) {
-            ensure!(
-                !same(o, input),
-                "the output {} is the input {}; write the result to another file so the input is kept",
-                o.display(),
-                input.display()
-            );
-        }
-        ensure!(
-            !outputs[..i].iter().any(|p| same(p, o)),
-            "{} is named twice among -o and --coords; give each output its own file",
-            o.display()
-        );
-    }
+    let inputs: Vec<(&str, &Path)> = a
+        .exemplars
+        .iter()
+        .map(|p| ("exemplar", p.as_path()))
+        .chain(a.weight_maps.iter().map(|p| ("weight map", p.as_path())))
+        .collect();
+    super::paths::check_files(&outputs, &inputs, None)?;
     let images = a
         .exemplars
         .iter()
@@ -273,7 +263,10 @@ pub fn run_replay(a: &ReplayArgs) -> Result<()> {
     let (most_x, most_y) = coords
         .iter()
         .fold((0, 0), |(x, y), c| (x.max(c[0]), y.max(c[1])));
+    // Every map is checked and replayed before any is written, so a bad
+    // one leaves the output directory as it was.
     let mut names = std::collections::HashSet::new();
+    let mut replayed = Vec::with_capacity(a.maps.len());
     for p in &a.maps {
         let name = p
             .file_name()
@@ -283,8 +276,13 @@ pub fn run_replay(a: &ReplayArgs) -> Result<()> {
             "two maps are named {}; replay writes each under its file name, so rename one",
             name.to_string_lossy()
         );
-    }
-    for p in &a.maps {
+        let target = a.output.join(name);
+        ensure!(
+            target.canonicalize().ok() != p.canonicalize().ok(),
+            "replaying {} would overwrite it; choose another -o directory",
+            p.display()
+        );
+        imaging::check_writable(&target)?;
         let map = imaging::load_image(p)?;
         ensure!(
             (most_x as usize) < map.width && (most_y as usize) < map.height,
@@ -293,15 +291,12 @@ pub fn run_replay(a: &ReplayArgs) -> Result<()> {
             map.width,
             map.height
         );
-        let out = map.rebuild(&coords, w, h, None)?;
-        let target = a.output.join(p.file_name().expect("checked above"));
-        ensure!(
-            target.canonicalize().ok() != p.canonicalize().ok(),
-            "replaying {} would overwrite it; choose another -o directory",
-            p.display()
-        );
-        imaging::save_image(&target, &out)?;
-        tracing::info!(map = %p.display(), out = %target.display(), "replayed");
+        imaging::check_output_format(&target, map.format)?;
+        replayed.push((target, map.rebuild(&coords, w, h, None)?));
+    }
+    for (target, image) in &replayed {
+        imaging::save_image(target, image)?;
+        tracing::info!(out = %target.display(), "replayed");
     }
     Ok(())
 }

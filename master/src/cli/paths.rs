@@ -72,6 +72,16 @@ pub(super) fn check_distinct(inputs: &[(&str, &Path)], common: &Common) -> Resul
     if let Some(p) = &common.report {
         outputs.push(("--report", p));
     }
+    check_files(&outputs, inputs, common.levels_dir.as_deref())
+}
+
+/// Rejects `outputs` (flag, path) that name the same file or an input of
+/// `inputs`, or a level file of `levels_dir`.
+pub(super) fn check_files(
+    outputs: &[(&str, &Path)],
+    inputs: &[(&str, &Path)],
+    levels_dir: Option<&Path>,
+) -> Result<()> {
     let placed: Vec<(&str, &Path, PathBuf)> =
         outputs.iter().map(|&(f, p)| (f, p, place(p))).collect();
     for (i, (fa, pa, a)) in placed.iter().enumerate() {
@@ -94,7 +104,7 @@ pub(super) fn check_distinct(inputs: &[(&str, &Path)], common: &Common) -> Resul
             }
         }
     }
-    if let Some(dir) = &common.levels_dir {
+    if let Some(dir) = levels_dir {
         let levels = resolve(dir);
         let clash = |p: &Path| {
             p == levels
