@@ -18,8 +18,10 @@ pub use cluster::{run_status, ClusterArgs, ClusterSetup, StatusArgs};
 mod cluster;
 mod parallel;
 mod paths;
+mod solid;
 mod tiles;
 pub use parallel::{MorphArgs, ParallelArgs, ReplayArgs};
+pub use solid::SolidArgs;
 pub use tiles::{read_index, CompareArgs, TilesCommand};
 
 const EXAMPLES: &str = "Examples:
@@ -32,6 +34,7 @@ const EXAMPLES: &str = "Examples:
   texsyn synth sample.png -o out.png --size 512x512 --method parallel --neighbourhood half --coords c.png
   texsyn morph a.png b.png --ramp x -o morph.png --size 512x512
   texsyn replay --coords c.png height.png normal.png -o replayed/
+  texsyn solid --view x=a.png --view y=b.png --view z=c.png --size 128 -o solid/
   texsyn tiles make sample.png --tiles 8 -o tiles/ && texsyn tiles assemble tiles/ --grid 8x8 -o wall.png
   texsyn compare sample.png out.png
 
@@ -71,6 +74,11 @@ pub enum Command {
     /// Morph several exemplars under weight maps, on coordinates (Manke–Wünsche §4).
     #[command(after_help = "Example: texsyn morph a.png b.png --ramp x -o out.png --size 512x512")]
     Morph(MorphArgs),
+    /// A solid (3-D) texture from 2-D views across its axes (Manke–Wünsche §5).
+    #[command(
+        after_help = "Example: texsyn solid --view xyz=marble.png --size 128 -o marble_solid/"
+    )]
+    Solid(SolidArgs),
     /// Copy other maps of a material (height, normal...) through a coordinate or copy map.
     #[command(after_help = "Example: texsyn replay --coords c.png height.png -o replayed/")]
     Replay(ReplayArgs),
@@ -729,6 +737,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Tiles(t) => tiles::run(t),
         Command::Morph(a) => parallel::run_morph(&a),
         Command::Replay(a) => parallel::run_replay(&a),
+        Command::Solid(a) => solid::run(&a),
         Command::Compare(a) => tiles::run_compare(&a),
     }
 }

@@ -91,23 +91,49 @@ pub fn parse_neighbourhood(s: &str) -> Result<Neighbourhood> {
     })
 }
 
+/// Parses `--jitter`: one strength in [0, 1], or one per level.
+pub(super) fn parse_jitter(s: &str) -> Result<Vec<f64>> {
+    s.split(',')
+        .map(|v| {
+            let r: f64 = v
+                .trim()
+                .parse()
+                .with_context(|| format!("--jitter '{v}' is not a number"))?;
+            ensure!((0.0..=1.0).contains(&r), "--jitter {r} must be in [0, 1]");
+            Ok(r)
+        })
+        .collect()
+}
+
+/// The search backend of a run: the local engine, or the cluster the flags
+/// name, with the workers this run started (stopped when it is dropped).
+pub(super) struct Backend {
+    pub search: Box<dyn SearchBackend>,
+    _workers: Option<(
+        Option<crate::launch::LocalWorkers>,
+        Option<crate::launch::SshWorkers>,
+    )>,
+}
+
+pub(super) fn open_backend(cluster: &ClusterArgs) -> Result<Backend> {
+    let engine = texsyn_engine::Engine::default();
+    Ok(match cluster.setup()? {
+        Some(c) => Backend {
+            search: Box::new(crate::cluster::ClusterSearch::connect(c.options, engine)?),
+            _workers: Some((c.local, c.ssh)),
+        },
+        None => Backend {
+            search: Box::new(crate::search::LocalSearch::new(engine)),
+            _workers: None,
+        },
+    })
+}
+
 impl ParallelArgs {
     fn settings(&self) -> Result<ParallelSettings> {
-        let jitter = self
-            .jitter
-            .split(',')
-            .map(|v| {
-                let r: f64 = v
-                    .trim()
-                    .parse()
-                    .with_context(|| format!("--jitter '{v}' is not a number"))?;
-                ensure!((0.0..=1.0).contains(&r), "--jitter {r} must be in [0, 1]");
-                Ok(r)
-            })
-            .collect::<Result<Vec<_>>>()?;
         Ok(ParallelSettings {
             neighbourhood: parse_neighbourhood(&self.neighbourhood)?,
-            jitter,
+            jitter: parse_jitter(&self.jitter)?,
             seed: self.seed,
             ..ParallelSettings::default()
         })
@@ -123,16 +149,7 @@ impl ParallelArgs {
     ) -> Result<Synthesis> {
         let settings = self.settings()?;
         let pool = thread_pool(self.threads)?;
-        let engine = texsyn_engine::Engine::default();
-        let cluster = self.cluster.setup()?;
-        let (options, _local_workers, _ssh_workers) = match cluster {
-            Some(c) => (Some(c.options), c.local, c.ssh),
-            None => (None, None, None),
-        };
-        let mut backend: Box<dyn SearchBackend> = match options {
-            Some(o) => Box::new(crate::cluster::ClusterSearch::connect(o, engine)?),
-            None => Box::new(crate::search::LocalSearch::new(engine)),
-        };
+        let mut backend = open_backend(&self.cluster)?;
         let bar = if self.quiet {
             ProgressBar::hidden()
         } else {
@@ -155,7 +172,7 @@ impl ParallelArgs {
                 size.0,
                 size.1,
                 &settings,
-                backend.as_mut(),
+                backend.search.as_mut(),
                 &progress,
             )
         })?;

@@ -35,6 +35,7 @@ mod deep;
 mod io;
 #[cfg(test)]
 mod tests;
+pub mod volume;
 
 pub use atomic::check_writable_any;
 pub use coordmap::{check_coord_map_path, load_coord_map, save_coord_map};

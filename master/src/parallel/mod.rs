@@ -7,11 +7,13 @@
 //! - [`appearance`]: the appearance space (5×5 windows, PCA);
 //! - [`candidates`]: k-coherence sets from the engine's top-k search;
 //! - [`weights`]: weight maps of a morph;
-//! - [`synth`]: the levels, the correction and the morph.
+//! - [`synth`]: the levels, the correction and the morph;
+//! - [`solid`]: solid textures from 2-D views (§5).
 
 pub mod appearance;
 pub mod candidates;
 pub mod coords;
+pub mod solid;
 pub mod synth;
 pub mod weights;
 

@@ -109,12 +109,12 @@ const TABLE_LIMIT: usize = 1 << 25;
 
 /// One level of one exemplar: its appearance vectors at this level's blur,
 /// its neighbourhood vectors at step `h` and its candidate sets.
-struct ExemplarLevel {
-    width: usize,
-    height: usize,
-    dims: usize,
-    h: i64,
-    appearance: Vec<f32>,
+pub(super) struct ExemplarLevel {
+    pub(super) width: usize,
+    pub(super) height: usize,
+    pub(super) dims: usize,
+    pub(super) h: i64,
+    pub(super) appearance: Vec<f32>,
     /// Per pixel the neighbourhood vector (points × dims), when it fits.
     table: Option<Vec<f32>>,
     stride: usize,
@@ -128,7 +128,7 @@ impl ExemplarLevel {
     /// describes the structure at its scale (with adjacent samples of the
     /// blurred image it would hold little more than the blur, and bricks
     /// break up into rubble).
-    fn build(img: &ColorImage, h: usize, pca: &Pca, points: &[Vec<[i32; 2]>]) -> Self {
+    pub(super) fn build(img: &ColorImage, h: usize, pca: &Pca, points: &[Vec<[i32; 2]>]) -> Self {
         let blur = blurred(img, h);
         let dims = pca.components.len();
         let projected: Vec<f64> = (0..img.width * img.height)
@@ -176,7 +176,7 @@ impl ExemplarLevel {
         ex
     }
 
-    fn at(&self, x: u32, y: u32) -> &[f32] {
+    pub(super) fn at(&self, x: u32, y: u32) -> &[f32] {
         let i = (y as usize * self.width + x as usize) * self.dims;
         &self.appearance[i..i + self.dims]
     }
@@ -201,7 +201,7 @@ impl ExemplarLevel {
 
     /// The neighbourhood vector of `q`: from the table, or computed into
     /// `buf`.
-    fn neighbourhood<'a>(
+    pub(super) fn neighbourhood<'a>(
         &'a self,
         q: [u32; 2],
         points: &[Vec<[i32; 2]>],
@@ -223,7 +223,7 @@ impl ExemplarLevel {
 /// A blur of the exemplar for the stack level of step `h`: a box of radius
 /// `h/2`, wrapping, done as a horizontal then a vertical pass of running sums
 /// (each rounded), so its cost does not grow with `h`.
-fn blurred(img: &ColorImage, h: usize) -> ColorImage {
+pub(super) fn blurred(img: &ColorImage, h: usize) -> ColorImage {
     if h <= 1 {
         return img.clone();
     }
@@ -406,7 +406,7 @@ pub fn morph(
 
 /// Exemplar j's jitter seed (exemplar 0 keeps `seed`, so a one-exemplar
 /// morph is the plain synthesis).
-fn exemplar_seed(seed: u64, j: usize) -> u64 {
+pub(super) fn exemplar_seed(seed: u64, j: usize) -> u64 {
     seed.wrapping_add((j as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))
 }
 
@@ -625,7 +625,7 @@ fn correct(
 /// The sum of squared differences, or `None` as soon as it exceeds `bound`.
 /// Eight lanes at a time (one AVX register), summed in a fixed order, so a
 /// complete sum is the same number whatever the bound.
-fn ssd_below(a: &[f32], b: &[f32], bound: f32) -> Option<f32> {
+pub(super) fn ssd_below(a: &[f32], b: &[f32], bound: f32) -> Option<f32> {
     let mut d = 0.0f32;
     let (mut ca, mut cb) = (a.chunks_exact(8), b.chunks_exact(8));
     for (x, y) in (&mut ca).zip(&mut cb) {
