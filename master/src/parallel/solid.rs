@@ -339,17 +339,17 @@ pub fn synthesize(
                 c[1] = (i64::from(c[1]) + jy * h as i64).rem_euclid(eh) as u32;
             }
         });
-        let luma: Vec<Luma> = uniq.iter().map(|img| Luma::of(img, h)).collect();
+        let bins = Bins::over(&ex);
         let mut target = vec![0.0f64; BINS];
         let n = ls.iter().product::<usize>();
         for (j, &e) in view_ex.iter().enumerate() {
             let mean = (0..n).map(|i| f64::from(lw.at(j, i))).sum::<f64>() / n as f64;
-            for (t, v) in target.iter_mut().zip(luma[e].histogram()) {
+            for (t, v) in target.iter_mut().zip(bins.histogram(&ex[e])) {
                 *t += mean * v;
             }
         }
         let ctx = Level {
-            luma,
+            bins,
             target,
             size: ls,
             m,
@@ -533,7 +533,7 @@ fn downsample3(w: &[f32], size: [usize; 3], h: usize) -> Vec<f32> {
         .collect()
 }
 
-/// Luminance bins of the histogram matching.
+/// Bins of the histogram matching.
 pub const BINS: usize = 32;
 /// Settings of a solid synthesis.
 #[derive(Clone, Debug)]
@@ -565,37 +565,40 @@ impl Default for SolidSettings {
     }
 }
 
-#[inline]
-fn bin(l: u8) -> usize {
-    usize::from(l) * BINS / 256
+/// Bins of the first appearance component over `[lo, hi]`.
+#[derive(Clone, Copy)]
+struct Bins {
+    lo: f32,
+    scale: f32,
 }
 
-/// An exemplar's luminance at one stack level.
-struct Luma {
-    width: usize,
-    data: Vec<u8>,
-}
-
-impl Luma {
-    fn of(img: &ColorImage, h: usize) -> Self {
-        let b = super::synth::blurred(img, h);
-        Self {
-            width: b.width,
-            data: crate::ycbcr::luminance(&b).data,
-        }
+impl Bins {
+    fn over(ex: &[ExemplarLevel]) -> Self {
+        let (lo, hi) = ex
+            .iter()
+            .flat_map(|e| e.appearance.iter().step_by(e.dims.max(1)))
+            .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+        let scale = if hi > lo {
+            BINS as f32 / (hi - lo)
+        } else {
+            0.0
+        };
+        Self { lo, scale }
     }
 
     #[inline]
-    fn at(&self, q: [u32; 2]) -> u8 {
-        self.data[q[1] as usize * self.width + q[0] as usize]
+    fn of(self, v: f32) -> usize {
+        (((v - self.lo) * self.scale) as usize).min(BINS - 1)
     }
 
-    fn histogram(&self) -> Vec<f64> {
+    /// The histogram of an exemplar level's first component.
+    fn histogram(self, e: &ExemplarLevel) -> Vec<f64> {
         let mut h = vec![0.0; BINS];
-        for &l in &self.data {
-            h[bin(l)] += 1.0;
+        let mut n = 0.0;
+        for &v in e.appearance.iter().step_by(e.dims.max(1)) {
+            h[self.of(v)] += 1.0;
+            n += 1.0;
         }
-        let n = self.data.len() as f64;
         h.iter_mut().for_each(|v| *v /= n);
         h
     }
@@ -623,10 +626,10 @@ struct Level<'a> {
     /// Per distinct exemplar, the variance of its appearance vectors times
     /// the neighbourhood's points: the size of a typical distance.
     scale: Vec<f32>,
-    /// Per distinct exemplar, its luminance at this level.
-    luma: Vec<Luma>,
-    /// The luminance histogram the solid should have: the exemplars'
-    /// histograms weighted by their views' mean weights.
+    /// Bins of the first appearance component.
+    bins: Bins,
+    /// The histogram of the first component the solid should have: the
+    /// exemplars' histograms weighted by their views' mean weights.
     target: Vec<f64>,
 }
 
@@ -673,7 +676,7 @@ impl Level<'_> {
     fn correct(&self, coords: &mut [[u32; 2]], blend: &mut [f32], sub: [usize; 3]) {
         let [w, h, d] = self.size;
         let m = self.m;
-        let pen = self.penalties(coords);
+        let pen = self.penalties(blend);
         let pen = &pen;
         let zs: Vec<usize> = (sub[2]..d).step_by(2).collect();
         let updates: Vec<Vec<[u32; 2]>> = {
@@ -727,28 +730,22 @@ impl Level<'_> {
     }
 
     /// Histogram matching (after Kopf et al.'s use of it against the
-    /// blur of solid synthesis): per luminance bin, the penalty a candidate
-    /// of that bin pays, `balance·scale·(H/T − 1)` where the solid's blended
-    /// luminance `H` holds more of the bin than the exemplars' `T`, 0
-    /// otherwise. Counted on the coordinates before the sub-pass, so it does
-    /// not depend on the threads.
-    fn penalties(&self, coords: &[[u32; 2]]) -> Vec<f32> {
-        let m = self.m;
-        let n = coords.len() / m;
-        let counts = coords
-            .par_chunks(m * 4096)
-            .enumerate()
+    /// wash-out of solid synthesis), on the first appearance component (the
+    /// brightness of a pixel's 5×5 window, so it restores contrast at the
+    /// window's scale, not as grain): per bin, the penalty a candidate of
+    /// that bin pays, `balance·(H/T − 1)` (times the exemplar's `scale`)
+    /// where the solid's blend `H` holds more of the bin than the
+    /// exemplars' `T`, 0 otherwise. Counted on the blend before the
+    /// sub-pass, so it does not depend on the threads.
+    fn penalties(&self, blend: &[f32]) -> Vec<f32> {
+        let n = blend.len() / self.dims;
+        let counts = blend
+            .par_chunks(self.dims * 4096)
             .fold(
                 || vec![0u64; BINS],
-                |mut acc, (c, chunk)| {
-                    for (k, cs) in chunk.chunks_exact(m).enumerate() {
-                        let i = c * 4096 + k;
-                        let mut l = 0.0f32;
-                        for (j, q) in cs.iter().enumerate() {
-                            l += self.weights.at(j, i)
-                                * f32::from(self.luma[self.view_ex[j]].at(*q));
-                        }
-                        acc[bin(l.round().clamp(0.0, 255.0) as u8)] += 1;
+                |mut acc, chunk| {
+                    for v in chunk.iter().step_by(self.dims) {
+                        acc[self.bins.of(*v)] += 1;
                     }
                     acc
                 },
@@ -832,7 +829,7 @@ impl Level<'_> {
         for base in &bases[..nb] {
             let at = (base[1] as usize * exl.width + base[0] as usize) * k;
             for &q in &table[at..at + k] {
-                let pen = self.scale[self.view_ex[j]] * pen[bin(self.luma[self.view_ex[j]].at(q))];
+                let pen = self.scale[self.view_ex[j]] * pen[self.bins.of(exl.at(q[0], q[1])[0])];
                 if pen > best.0 {
                     continue;
                 }
