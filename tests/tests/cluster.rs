@@ -1085,3 +1085,37 @@ fn parallel_synthesis_and_morph_on_local_workers_match_the_local_engine() {
         );
     }
 }
+
+#[test]
+fn solid_on_local_workers_matches_the_local_engine() {
+    let dir = tempfile::tempdir().unwrap();
+    let texsyn = harness::binary("texsyn");
+    let a = texture_path("pink_marble_color_128.png");
+    let b = texture_path("brick_color_96.png");
+    let run = |out: &str, cluster: bool| {
+        let mut c = std::process::Command::new(&texsyn);
+        c.arg("solid")
+            .arg("--view")
+            .arg(format!("xyz={}", a.display()))
+            .arg("--view")
+            .arg(format!("2:xz={}", b.display()))
+            .args([
+                "--ramp", "y", "--size", "24", "--slices", "none", "-q", "-o",
+            ])
+            .arg(dir.path().join(out));
+        if cluster {
+            c.args(["--local-workers", "2", "--require-cluster"]);
+        }
+        let r = c.output().unwrap();
+        assert!(
+            r.status.success(),
+            "{out}: {}",
+            String::from_utf8_lossy(&r.stderr)
+        );
+        std::fs::read(dir.path().join(out).join("solid.raw")).unwrap()
+    };
+    assert!(
+        run("local", false) == run("cluster", true),
+        "the cluster's solid differs from the local engine's"
+    );
+}
