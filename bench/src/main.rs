@@ -14,6 +14,7 @@ mod large;
 mod lbg;
 mod morph;
 mod paper;
+mod solid;
 
 const EXAMPLES: &str = "Examples:
   texsyn-bench paper
@@ -24,6 +25,7 @@ const EXAMPLES: &str = "Examples:
   texsyn-bench large ../shared/textures/mossy_rock_color_1024.png --size 1024x1024 --unpruned
   texsyn-bench upscale ../shared/textures/mossy_rock_color_1024.png -o /tmp/rock_8192.png --factor 8
   texsyn-bench morph --reps 3 --out /tmp/morph
+  texsyn-bench solid --sizes 64,128,256 --neighbourhoods half,7
   texsyn-bench faults --runs 50 --seed 1 --json /tmp/faults.json
   /usr/bin/time -v texsyn synth /tmp/rock_8192.png -o /tmp/out.png --size 512x512 [--local-workers 2]
 
@@ -76,6 +78,12 @@ enum Command {
     /// neighbourhood, then `--method parallel` against the block method.
     #[command(after_help = "Example: texsyn-bench morph --reps 3 --out /tmp/morph")]
     Morph(morph::MorphArgs),
+    /// Solid textures: time and peak memory per size and neighbourhood (each
+    /// run its own process), then the faces' scores against the exemplar.
+    #[command(
+        after_help = "Example: texsyn-bench solid --sizes 64,128,256 --neighbourhoods half,7"
+    )]
+    Solid(solid::SolidArgs),
     /// The seeded fault campaign: cluster runs with random kills, stops,
     /// partitions, restarts, slowed and lying workers; every output must be
     /// bit-identical, nothing left behind.
@@ -117,6 +125,7 @@ fn main() -> ExitCode {
         Command::Large(a) => large::run(&a),
         Command::Upscale(a) => large::upscale(&a),
         Command::Morph(a) => morph::run(&a),
+        Command::Solid(a) => solid::run(&a),
         Command::Faults(a) => faults::run(&a),
         Command::Hog(a) => faults::hog(&a),
     };
