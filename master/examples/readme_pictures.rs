@@ -7,7 +7,7 @@ use anyhow::Result;
 use texsyn::block::Silent;
 use texsyn::imaging::{self, ColorImage};
 use texsyn::parallel::{
-    self,
+    self, solid,
     synth::{Neighbourhood, ParallelSettings},
     weights,
 };
@@ -60,7 +60,7 @@ fn main() -> Result<()> {
     let docs = root.join("docs");
     std::fs::create_dir_all(&docs)?;
     // Names on the command line (fill, extend, synth, tiles, omega, morph,
-    // replay) make only those pictures.
+    // replay, solid) make only those pictures.
     let only: Vec<String> = std::env::args().skip(1).collect();
     let want = |name: &str| only.is_empty() || only.iter().any(|o| o == name);
 
@@ -214,6 +214,34 @@ fn main() -> Result<()> {
         }
         let refs: Vec<&ColorImage> = row.iter().collect();
         imaging::save_color(&docs.join("replay.png"), &side_by_side(&refs))?;
+    }
+    if want("solid") {
+        println!("solid: pink marble on x, y and z, 128³, half-reduced");
+        let marble = imaging::load_color(&tex.join("pink_marble_color_128.png"))?;
+        let views: Vec<solid::View> = solid::Axis::ALL
+            .into_iter()
+            .map(|axis| solid::View {
+                axis,
+                exemplar: &marble,
+                material: 0,
+            })
+            .collect();
+        let t = std::time::Instant::now();
+        let mut backend = LocalSearch::new(Engine::default());
+        let out = solid::synthesize(
+            &views,
+            &solid::MaterialWeights::Single,
+            [128; 3],
+            &solid::SolidSettings::default(),
+            &mut backend,
+            &|_, _, _, _| {},
+        )?;
+        println!("  {:.2} s", t.elapsed().as_secs_f64());
+        let v = texsyn::imaging::volume::Volume::new(out.size, 3, out.colour)?;
+        imaging::save_color(
+            &docs.join("solid.png"),
+            &side_by_side(&[&marble, &v.preview(4)]),
+        )?;
     }
     println!("wrote {}", docs.display());
     Ok(())
