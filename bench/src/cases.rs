@@ -149,3 +149,20 @@ impl RunArgs {
         Ok(())
     }
 }
+
+/// A binary built beside texsyn-bench (`name`), or `given`; it must exist.
+pub fn sibling_binary(name: &str, given: Option<&Path>, flag: &str) -> Result<PathBuf> {
+    let p = match given {
+        Some(p) => p.to_path_buf(),
+        None => std::env::current_exe()?
+            .parent()
+            .context("texsyn-bench has no directory")?
+            .join(name),
+    };
+    anyhow::ensure!(
+        p.is_file(),
+        "no {name} binary at {}: build it (cargo build --release -p {name}) or give {flag}",
+        p.display()
+    );
+    Ok(p)
+}

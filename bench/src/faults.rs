@@ -326,18 +326,8 @@ pub fn run(args: &FaultArgs) -> Result<()> {
         }
     };
     ensure!(sample.is_file(), "no sample {}", sample.display());
-    let master_binary = match &args.master_binary {
-        Some(p) => p.clone(),
-        None => std::env::current_exe()?
-            .parent()
-            .context("texsyn-bench has no directory")?
-            .join("texsyn"),
-    };
-    ensure!(
-        master_binary.is_file(),
-        "no master binary at {}: build it (cargo build --release -p texsyn) or give --master-binary",
-        master_binary.display()
-    );
+    let master_binary =
+        crate::cases::sibling_binary("texsyn", args.master_binary.as_deref(), "--master-binary")?;
     let mut c = Campaign {
         args,
         worker_binary: find_worker_binary(args.worker_binary.as_deref())?,

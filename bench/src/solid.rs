@@ -75,18 +75,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
         }
     };
     ensure!(exemplar.is_file(), "no exemplar {}", exemplar.display());
-    let texsyn = match &a.texsyn {
-        Some(p) => p.clone(),
-        None => std::env::current_exe()?
-            .parent()
-            .context("texsyn-bench has no directory")?
-            .join("texsyn"),
-    };
-    ensure!(
-        texsyn.is_file(),
-        "no texsyn binary at {}: build it (cargo build --release -p texsyn) or give --texsyn",
-        texsyn.display()
-    );
+    let texsyn = crate::cases::sibling_binary("texsyn", a.texsyn.as_deref(), "--texsyn")?;
     let tmp = tempfile::tempdir()?;
     let out = a.out.clone().unwrap_or_else(|| tmp.path().to_path_buf());
     println!(

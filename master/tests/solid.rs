@@ -201,6 +201,19 @@ fn slices_and_the_preview_are_the_volume_s_voxels() {
     }
 }
 
+/// The mean colours of the two materials of the morph tests.
+fn material_means() -> ([f64; 3], [f64; 3]) {
+    (
+        stats(&imaging::load_color(&marble()).unwrap()).0,
+        stats(&imaging::load_color(&leaves()).unwrap()).0,
+    )
+}
+
+/// The L1 distance of two mean colours.
+fn dist(m: [f64; 3], e: [f64; 3]) -> f64 {
+    (0..3).map(|c| (m[c] - e[c]).abs()).sum()
+}
+
 #[test]
 fn a_ramp_along_z_morphs_one_material_into_the_other() {
     let dir = tempfile::tempdir().unwrap();
@@ -219,11 +232,7 @@ fn a_ramp_along_z_morphs_one_material_into_the_other() {
             "none",
         ],
     );
-    let (a, b) = (
-        stats(&imaging::load_color(&marble()).unwrap()).0,
-        stats(&imaging::load_color(&leaves()).unwrap()).0,
-    );
-    let dist = |m: [f64; 3], e: [f64; 3]| (0..3).map(|c| (m[c] - e[c]).abs()).sum::<f64>();
+    let (a, b) = material_means();
     let first = stats(&v.slice_rgb(Axis::Z, 0)).0;
     let middle = stats(&v.slice_rgb(Axis::Z, 16)).0;
     let last = stats(&v.slice_rgb(Axis::Z, 31)).0;
@@ -274,11 +283,7 @@ fn weight_volumes_place_the_materials() {
             "none",
         ],
     );
-    let (a, b) = (
-        stats(&imaging::load_color(&marble()).unwrap()).0,
-        stats(&imaging::load_color(&leaves()).unwrap()).0,
-    );
-    let dist = |m: [f64; 3], e: [f64; 3]| (0..3).map(|c| (m[c] - e[c]).abs()).sum::<f64>();
+    let (a, b) = material_means();
     let l = stats(&v.slice_rgb(Axis::X, 8)).0;
     let r = stats(&v.slice_rgb(Axis::X, 24)).0;
     assert!(dist(l, a) < 0.2 * dist(a, b), "x = 8 is not marble: {l:?}");

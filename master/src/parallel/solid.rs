@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use super::appearance::Pca;
 use super::candidates::Candidates;
 use super::coords::jitter_offset;
-use super::synth::{exemplar_seed, ssd_below, ExemplarLevel, Neighbourhood, ParallelSettings};
+use super::synth::{exemplar_seed, ExemplarLevel, Neighbourhood, ParallelSettings};
 use crate::imaging::ColorImage;
 use crate::search::SearchBackend;
 
@@ -802,48 +802,23 @@ impl Level<'_> {
         }
         let exl = &self.ex[self.view_ex[j]];
         let (k, table) = &self.cands[self.view_ex[j]];
-        let (ew, eh) = (exl.width as i64, exl.height as i64);
         let [u, v] = self.planes[j];
-        let mut best = (f32::INFINITY, coords[i * self.m + j]);
-        // Candidates of the 3×3 neighbours in the plane, shifted back to P
-        // (k-coherence); coincident bases are taken once, and ties go to the
-        // smaller coordinate, so the order candidates are met in is free.
-        let mut bases = [[u32::MAX; 2]; 9];
-        let mut nb = 0;
-        for dv in -1..=1i64 {
-            for du in -1..=1i64 {
-                let mut q = p;
-                q[u] += du;
-                q[v] += dv;
-                let n = coords[self.index(q) * self.m + j];
-                let base = [
-                    (i64::from(n[0]) - exl.h * du).rem_euclid(ew) as u32,
-                    (i64::from(n[1]) - exl.h * dv).rem_euclid(eh) as u32,
-                ];
-                if !bases[..nb].contains(&base) {
-                    bases[nb] = base;
-                    nb += 1;
-                }
-            }
-        }
-        for base in &bases[..nb] {
-            let at = (base[1] as usize * exl.width + base[0] as usize) * k;
-            for &q in &table[at..at + k] {
-                let pen = self.scale[self.view_ex[j]] * pen[self.bins.of(exl.at(q[0], q[1])[0])];
-                if pen > best.0 {
-                    continue;
-                }
-                let have = exl.neighbourhood(q, self.points2, buf);
-                let Some(dist) = ssd_below(want, have, best.0 - pen) else {
-                    continue;
-                };
-                let dist = dist + pen;
-                if dist < best.0 || (dist == best.0 && (q[1], q[0]) < (best.1[1], best.1[0])) {
-                    best = (dist, q);
-                }
-            }
-        }
-        best.1
+        // k-coherence from the 3×3 neighbours in the view's plane.
+        let (bases, nb) = exl.bases(|du, dv| {
+            let mut q = p;
+            q[u] += du;
+            q[v] += dv;
+            coords[self.index(q) * self.m + j]
+        });
+        let scale = self.scale[self.view_ex[j]];
+        exl.best_candidate(
+            &bases[..nb],
+            (*k, table),
+            self.points2,
+            (want, buf),
+            coords[i * self.m + j],
+            |q| scale * pen[self.bins.of(exl.at(q[0], q[1])[0])],
+        )
     }
 }
 

@@ -199,9 +199,69 @@ impl ExemplarLevel {
         }
     }
 
+    /// The bases of k-coherence at a pixel: the coordinates of its 3×3
+    /// neighbours (`neighbour(dx, dy)`, offsets in the level's plane) shifted
+    /// back by `h·(dx, dy)`. Coherent neighbours shift back to the same
+    /// exemplar pixel: each such base is taken once.
+    pub(super) fn bases(&self, neighbour: impl Fn(i64, i64) -> [u32; 2]) -> ([[u32; 2]; 9], usize) {
+        let (ew, eh) = (self.width as i64, self.height as i64);
+        let mut bases = [[u32::MAX; 2]; 9];
+        let mut nb = 0;
+        for dy in -1..=1i64 {
+            for dx in -1..=1i64 {
+                let n = neighbour(dx, dy);
+                let base = [
+                    (i64::from(n[0]) - self.h * dx).rem_euclid(ew) as u32,
+                    (i64::from(n[1]) - self.h * dy).rem_euclid(eh) as u32,
+                ];
+                if !bases[..nb].contains(&base) {
+                    bases[nb] = base;
+                    nb += 1;
+                }
+            }
+        }
+        (bases, nb)
+    }
+
+    /// The choice of eq. 3: of the candidates of `bases` (`k` each in
+    /// `table`), the one whose neighbourhood is nearest to `want` after
+    /// adding its `penalty`; `current` when none is nearer than infinity.
+    /// A candidate seen twice scores the same twice, and ties go to the
+    /// smaller coordinate, so the order candidates are met in does not
+    /// matter and candidates are not deduplicated.
+    pub(super) fn best_candidate(
+        &self,
+        bases: &[[u32; 2]],
+        (k, table): (usize, &[[u32; 2]]),
+        points: &[Vec<[i32; 2]>],
+        (want, buf): (&[f32], &mut Vec<f32>),
+        current: [u32; 2],
+        penalty: impl Fn([u32; 2]) -> f32,
+    ) -> [u32; 2] {
+        let mut best = (f32::INFINITY, current);
+        for base in bases {
+            let at = (base[1] as usize * self.width + base[0] as usize) * k;
+            for &q in &table[at..at + k] {
+                let pen = penalty(q);
+                if pen > best.0 {
+                    continue;
+                }
+                let have = self.neighbourhood(q, points, buf);
+                let Some(d) = ssd_below(want, have, best.0 - pen) else {
+                    continue;
+                };
+                let d = d + pen;
+                if d < best.0 || (d == best.0 && (q[1], q[0]) < (best.1[1], best.1[0])) {
+                    best = (d, q);
+                }
+            }
+        }
+        best.1
+    }
+
     /// The neighbourhood vector of `q`: from the table, or computed into
     /// `buf`.
-    pub(super) fn neighbourhood<'a>(
+    fn neighbourhood<'a>(
         &'a self,
         q: [u32; 2],
         points: &[Vec<[i32; 2]>],
@@ -569,47 +629,19 @@ fn correct(
                     }
                     for (e, (exl, (k, table))) in ex.iter().zip(cands).enumerate() {
                         let i = y as usize * width + x as usize;
-                        let (ew, eh) = (exl.width as i64, exl.height as i64);
-                        let mut best = (f32::INFINITY, lv.coords[i * m + e]);
-                        // Candidates of the 3×3 neighbours, shifted back to P
-                        // (k-coherence). Coherent neighbours shift back to the
-                        // same exemplar pixel: each such base is taken once. A
-                        // candidate seen twice scores the same twice and the
-                        // ties rule is order-free, so candidates are not
-                        // deduplicated.
-                        let mut bases = [[u32::MAX; 2]; 9];
-                        let mut nb = 0;
-                        for dy in -1..=1i64 {
-                            for dx in -1..=1i64 {
-                                let ni = (y + dy).rem_euclid(hh) as usize * width
-                                    + (x + dx).rem_euclid(w) as usize;
-                                let n = lv.coords[ni * m + e];
-                                let base = [
-                                    (i64::from(n[0]) - exl.h * dx).rem_euclid(ew) as u32,
-                                    (i64::from(n[1]) - exl.h * dy).rem_euclid(eh) as u32,
-                                ];
-                                if !bases[..nb].contains(&base) {
-                                    bases[nb] = base;
-                                    nb += 1;
-                                }
-                            }
-                        }
-                        for base in &bases[..nb] {
-                            let at = (base[1] as usize * exl.width + base[0] as usize) * k;
-                            for &q in &table[at..at + k] {
-                                let have = exl.neighbourhood(q, points, buf);
-                                let Some(d) = ssd_below(want, have, best.0) else {
-                                    continue;
-                                };
-                                // Ties go to the smaller coordinate, whatever the order.
-                                if d < best.0
-                                    || (d == best.0 && (q[1], q[0]) < (best.1[1], best.1[0]))
-                                {
-                                    best = (d, q);
-                                }
-                            }
-                        }
-                        row[x as usize * m + e] = best.1;
+                        let (bases, nb) = exl.bases(|dx, dy| {
+                            let ni = (y + dy).rem_euclid(hh) as usize * width
+                                + (x + dx).rem_euclid(w) as usize;
+                            lv.coords[ni * m + e]
+                        });
+                        row[x as usize * m + e] = exl.best_candidate(
+                            &bases[..nb],
+                            (*k, table),
+                            points,
+                            (want, buf),
+                            lv.coords[i * m + e],
+                            |_| 0.0,
+                        );
                     }
                 }
             },
