@@ -424,7 +424,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
         bar.set_position(step as u64);
     };
     let t = Instant::now();
-    let out = pool.install(|| {
+    let mut out = pool.install(|| {
         solid::synthesize(
             &views,
             &weights,
@@ -455,7 +455,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
         "explained_variance": out.explained_variance,
         "seconds": seconds,
     });
-    let colour = Volume::new(size, 3, out.colour.clone())?;
+    let colour = Volume::new(size, 3, std::mem::take(&mut out.colour))?;
     write_volume(
         &colour,
         &a.output,

@@ -99,9 +99,10 @@ impl ViewWeights {
 }
 
 /// Bytes a solid of `size` with `views` views, `materials` materials and
-/// `dims` appearance components needs at its finest level: coordinates,
-/// the sub-pass's new coordinates, the appearance blend, the weight
-/// volumes (full size and level), and the colour.
+/// `dims` appearance components needs at its finest level: coordinates
+/// (twice at the end, when they are split per view), the sub-pass's new
+/// coordinates, the appearance blend, the weight volumes (full size and
+/// level), and the colour (twice, as it is written).
 pub fn memory_needed(size: [usize; 3], views: usize, materials: usize, dims: usize) -> u64 {
     let v = size.iter().map(|&s| s as u64).product::<u64>();
     let m = views as u64;
@@ -110,7 +111,7 @@ pub fn memory_needed(size: [usize; 3], views: usize, materials: usize, dims: usi
     } else {
         0
     };
-    v * (8 * m + m + 4 * dims as u64 + weights + 3)
+    v * (17 * m + 4 * dims as u64 + weights + 6)
 }
 
 /// Bytes of memory the system can give now (`MemAvailable`), when known.
