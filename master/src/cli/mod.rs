@@ -18,8 +18,10 @@ pub use cluster::{run_status, ClusterArgs, ClusterSetup, StatusArgs};
 mod cluster;
 mod parallel;
 mod paths;
+mod procedural;
 mod tiles;
 pub use parallel::{MorphArgs, ParallelArgs, ReplayArgs};
+pub use procedural::{MatchArgs, MatchCommand};
 pub use tiles::{read_index, CompareArgs, TilesCommand};
 
 const EXAMPLES: &str = "Examples:
@@ -34,6 +36,7 @@ const EXAMPLES: &str = "Examples:
   texsyn replay --coords c.png height.png normal.png -o replayed/
   texsyn tiles make sample.png --tiles 8 -o tiles/ && texsyn tiles assemble tiles/ --grid 8x8 -o wall.png
   texsyn compare sample.png out.png
+  texsyn match catalogue -o shaders.cat && texsyn match photo.png --catalogue shaders.cat -o match.png --params match.json
 
 Benchmarks are a separate binary: cargo run --release -p texsyn-bench -- paper";
 
@@ -77,6 +80,11 @@ pub enum Command {
     /// Compare two textures: JSON with S_F, S_L, colour, patch fidelity and seam scores.
     #[command(after_help = "Example: texsyn compare sample.png out.png")]
     Compare(CompareArgs),
+    /// Find the procedural shader and parameters that reproduce a texture, or transform one texture into another (Bourque–Dudek).
+    #[command(
+        after_help = "Examples:\n  texsyn match catalogue -o shaders.cat\n  texsyn match photo.png --catalogue shaders.cat -o match.png --params match.json\n  texsyn match transform a.png b.png --key k.png --frames 48 --catalogue shaders.cat -o frames/\n  texsyn match shaders"
+    )]
+    Match(MatchArgs),
 }
 
 #[derive(Subcommand, Debug)]
@@ -730,5 +738,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Morph(a) => parallel::run_morph(&a),
         Command::Replay(a) => parallel::run_replay(&a),
         Command::Compare(a) => tiles::run_compare(&a),
+        Command::Match(a) => procedural::run(&a),
     }
 }
