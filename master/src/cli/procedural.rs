@@ -138,8 +138,8 @@ pub struct TransformArgs {
     /// The n of the path cost (Σ eⁿ)^(1/n): larger favours many small steps.
     #[arg(long, default_value_t = 3.0)]
     pub exponent: f64,
-    /// Largest (1 − S_F) + S_L + colour between adjacent path points before a midpoint is inserted.
-    #[arg(long, default_value_t = 0.15)]
+    /// Largest distance (structure + colour term) between adjacent path points before a midpoint is inserted.
+    #[arg(long, default_value_t = 0.1)]
     pub threshold: f64,
     /// Delay between GIF frames in milliseconds (0: no GIF).
     #[arg(long, default_value_t = 80)]

@@ -230,7 +230,7 @@ fn clouds(p: &[f64], n: &Perlin, u: f64, v: f64) -> f64 {
 }
 
 fn turbulence(p: &[f64], n: &Perlin, u: f64, v: f64) -> f64 {
-    1.6 * fbm(n, u, v, p[0], p[1], true)
+    1.2 * fbm(n, u, v, p[0], p[1], true)
 }
 
 const MARBLE: &[ParamSpec] = &[
@@ -323,7 +323,13 @@ fn cells(p: &[f64], _: &Perlin, u: f64, v: f64) -> f64 {
 
 const BRICKS: &[ParamSpec] = &[
     ParamSpec::new("rows", 3.0, 10.0, Integer, "brick rows per unit"),
-    ParamSpec::new("aspect", 1.5, 4.0, Continuous, "brick length over height"),
+    ParamSpec::new(
+        "aspect",
+        1.0,
+        4.0,
+        Continuous,
+        "brick length over height (1: square tiles)",
+    ),
     ParamSpec::new(
         "mortar",
         0.04,
@@ -331,13 +337,21 @@ const BRICKS: &[ParamSpec] = &[
         Continuous,
         "mortar width, fraction of a brick's height",
     ),
+    ParamSpec::new(
+        "bond",
+        0.0,
+        2.0,
+        Integer,
+        "every other row shifted by 0, ¼ or ½ a brick (stack, quarter, running bond)",
+    ),
+    ParamSpec::new("grain", 0.0, 0.4, Continuous, "noise on the bricks' faces"),
 ];
 
-fn bricks(p: &[f64], _: &Perlin, u: f64, v: f64) -> f64 {
+fn bricks(p: &[f64], n: &Perlin, u: f64, v: f64) -> f64 {
     let (y, len) = (v * p[0], p[1]);
     let row = y.floor();
     let shift = if (row as i64).rem_euclid(2) == 1 {
-        0.5
+        0.25 * p[3]
     } else {
         0.0
     };
@@ -349,7 +363,8 @@ fn bricks(p: &[f64], _: &Perlin, u: f64, v: f64) -> f64 {
     let edge = dx.min(dy);
     let half = p[2] / 2.0;
     let inside = smoothstep(half - 0.03, half + 0.03, edge);
-    let shade = 0.9 + 0.1 * hash01(col as i64, row as i64, 23);
+    let grain = n.get([u * p[0] * 3.0 + 0.5, v * p[0] * 3.0 + 0.25]);
+    let shade = 0.8 + 0.1 * hash01(col as i64, row as i64, 23) + p[4] * grain;
     inside * shade
 }
 

@@ -5,8 +5,8 @@
 //!   fully connected graph, edge weight e = the structure distance of the
 //!   two textures; Dijkstra finds the path of least (Σ eⁿ)^(1/n) (larger n
 //!   favours many small steps). Then, while two adjacent frames differ by
-//!   more than a threshold (in (1 − S_F) + S_L + colour), the parameter
-//!   midpoint is inserted between them.
+//!   more than a threshold (structure distance + colour term), the
+//!   parameter midpoint is inserted between them.
 //! - Key-textures: the paths between consecutive stops are concatenated.
 //! - Between shaders (§4.3): the jump points. Every catalogue sample of one
 //!   shader is compared with every sample of the other; from the closest
@@ -34,8 +34,8 @@ use crate::compare::Descriptors;
 pub struct TransformSettings {
     /// The n of the path cost (Σ eⁿ)^(1/n).
     pub exponent: f64,
-    /// Largest (1 − S_F) + S_L + colour between adjacent path points before
-    /// a midpoint is inserted.
+    /// Largest distance (structure + colour term) between adjacent path
+    /// points before a midpoint is inserted.
     pub threshold: f64,
     /// Most path points (midpoint insertion stops there).
     pub max_points: usize,
@@ -45,7 +45,7 @@ impl Default for TransformSettings {
     fn default() -> Self {
         Self {
             exponent: 3.0,
-            threshold: 0.15,
+            threshold: 0.1,
             max_points: 400,
         }
     }
@@ -76,20 +76,32 @@ impl TransformSettings {
 #[derive(Clone, Debug)]
 pub struct Path {
     pub points: Vec<Pattern>,
-    /// `steps[i]`: (1 − S_F) + S_L + colour from point i to i + 1.
+    /// `steps[i]`: structure distance + colour term from point i to i + 1.
     pub steps: Vec<f64>,
     /// `jumps[i]`: step i goes from one shader to another.
     pub jumps: Vec<bool>,
 }
 
-/// (1 − S_F) + S_L + colour of two patterns rendered at `size`².
-fn frame_distance(a: &Descriptors, b: &Descriptors) -> f64 {
-    let (s_f, s_l, c) = a.scores(b);
-    (1.0 - s_f) + s_l + c
+/// What two frames are compared by.
+#[derive(Clone)]
+struct Frame {
+    structure: Structure,
+    colours: Descriptors,
 }
 
-fn descriptors(p: &Pattern, size: usize) -> Descriptors {
-    Descriptors::of(&p.render(size, size)).expect("size ≥ 32")
+/// The structure distance plus the colour term of two frames. (S_F itself
+/// is too sharp here: the spectrum of a periodic pattern moves off its own
+/// peaks with the smallest change of parameters.)
+fn frame_distance(a: &Frame, b: &Frame) -> f64 {
+    a.structure.distance(&b.structure) + a.colours.scores(&b.colours).2
+}
+
+fn descriptors(p: &Pattern, size: usize) -> Frame {
+    let img = p.render(size, size);
+    Frame {
+        structure: Structure::of_image(&img),
+        colours: Descriptors::of(&img).expect("size ≥ 32"),
+    }
 }
 
 /// Parameters `t` of the way from `p` to `q` (periodic ones the short way,
@@ -189,9 +201,9 @@ fn catalogue_path(cat: &Catalogue, a: &Pattern, b: &Pattern, n: f64) -> Vec<Patt
 #[allow(clippy::too_many_arguments)]
 fn subdivide(
     a: &Pattern,
-    da: &Descriptors,
+    da: &Frame,
     b: Pattern,
-    db: Descriptors,
+    db: Frame,
     depth: usize,
     size: usize,
     settings: &TransformSettings,
@@ -410,6 +422,10 @@ pub fn frames(path: &Path, n: usize) -> Vec<Pattern> {
     let mut seg = 0;
     let mut start = 0.0;
     for i in 0..n {
+        if i == n - 1 {
+            out.push(path.points[path.points.len() - 1].clone());
+            break;
+        }
         let s = total * i as f64 / (n - 1) as f64;
         while seg + 1 < path.steps.len() && start + path.steps[seg] < s {
             start += path.steps[seg];
@@ -421,12 +437,10 @@ pub fn frames(path: &Path, n: usize) -> Vec<Pattern> {
         } else {
             1.0
         };
-        out.push(if path.jumps[seg] {
-            if t < 0.5 {
-                a.clone()
-            } else {
-                b.clone()
-            }
+        out.push(if (path.jumps[seg] && t < 0.5) || t <= 0.0 {
+            a.clone()
+        } else if path.jumps[seg] || t >= 1.0 {
+            b.clone()
         } else {
             between(a, b, t)
         });
