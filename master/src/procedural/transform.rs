@@ -409,9 +409,22 @@ pub fn transform(cat: &Catalogue, stops: &[Pattern], settings: &TransformSetting
     Ok(path)
 }
 
-/// `n` frames spaced evenly along the path's perceived distance.
+/// `n` frames spaced evenly along the path's perceived distance. A jump
+/// between shaders counts as no distance: it falls between two adjacent
+/// frames instead of holding several frames on either side.
 pub fn frames(path: &Path, n: usize) -> Vec<Pattern> {
-    let total: f64 = path.steps.iter().sum();
+    let within: Vec<f64> = path
+        .steps
+        .iter()
+        .zip(&path.jumps)
+        .map(|(&d, &j)| if j { 0.0 } else { d })
+        .collect();
+    let steps: &[f64] = if within.iter().sum::<f64>() > 0.0 {
+        &within
+    } else {
+        &path.steps
+    };
+    let total: f64 = steps.iter().sum();
     if n == 0 {
         return Vec::new();
     }
@@ -427,13 +440,13 @@ pub fn frames(path: &Path, n: usize) -> Vec<Pattern> {
             break;
         }
         let s = total * i as f64 / (n - 1) as f64;
-        while seg + 1 < path.steps.len() && start + path.steps[seg] < s {
-            start += path.steps[seg];
+        while seg + 1 < steps.len() && start + steps[seg] < s {
+            start += steps[seg];
             seg += 1;
         }
         let (a, b) = (&path.points[seg], &path.points[seg + 1]);
-        let t = if path.steps[seg] > 0.0 {
-            ((s - start) / path.steps[seg]).clamp(0.0, 1.0)
+        let t = if steps[seg] > 0.0 {
+            ((s - start) / steps[seg]).clamp(0.0, 1.0)
         } else {
             1.0
         };
