@@ -14,6 +14,7 @@ mod large;
 mod lbg;
 mod morph;
 mod paper;
+mod procedural;
 mod solid;
 
 const EXAMPLES: &str = "Examples:
@@ -27,6 +28,7 @@ const EXAMPLES: &str = "Examples:
   texsyn-bench morph --reps 3 --out /tmp/morph
   texsyn-bench solid --sizes 64,128,256 --neighbourhoods half,7
   texsyn-bench faults --runs 50 --seed 1 --json /tmp/faults.json
+  texsyn-bench match --draws 10 --photos ../shared/textures/brick_color_96.png --out /tmp/match
   /usr/bin/time -v texsyn synth /tmp/rock_8192.png -o /tmp/out.png --size 512x512 [--local-workers 2]
 
 Textures default to the repository's assets/textures (give --textures DIR elsewhere).";
@@ -91,6 +93,12 @@ enum Command {
         after_help = "Example (as root, for partitions): texsyn-bench faults --runs 50 --seed 1"
     )]
     Faults(faults::FaultArgs),
+    /// Procedural matching (Bourque–Dudek): recovery of synthetic targets
+    /// per shader, match time per target, matches of photos.
+    #[command(
+        after_help = "Example: texsyn-bench match --draws 10 --photos ../shared/textures/pink_marble_color_128.png --out /tmp/match"
+    )]
+    Match(procedural::MatchArgs),
     /// Spins on one core (the neighbour of a slowed worker in `faults`).
     #[command(hide = true)]
     Hog(faults::HogArgs),
@@ -128,6 +136,7 @@ fn main() -> ExitCode {
         Command::Solid(a) => solid::run(&a),
         Command::Faults(a) => faults::run(&a),
         Command::Hog(a) => faults::hog(&a),
+        Command::Match(a) => procedural::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -243,6 +243,37 @@ fn main() -> Result<()> {
             &side_by_side(&[&marble, &v.preview(4)]),
         )?;
     }
+    if want("procedural") {
+        use texsyn::procedural::{catalogue, matching, transform};
+        println!("procedural: pink marble matched, then transformed into the walnut match");
+        let t = std::time::Instant::now();
+        let cat = catalogue::Catalogue::build(&catalogue::BuildSettings::default(), &|| {})?;
+        println!("  catalogue {:.1} s", t.elapsed().as_secs_f64());
+        let settings = matching::MatchSettings::default();
+        let marble = imaging::load_color(&tex.join("pink_marble_color_128.png"))?;
+        let walnut = imaging::load_color(&root.join("../shared/textures/walnut_color_128.png"))?;
+        let a = matching::match_texture(&marble, &cat, &settings)?;
+        let b = matching::match_texture(&walnut, &cat, &settings)?;
+        for m in [&a, &b] {
+            println!(
+                "  {} S_F {:.3} S_L {:.3} colour {:.3} in {:.1} s",
+                m.pattern.shader.name, m.s_f, m.s_l, m.colour, m.seconds
+            );
+        }
+        let path = transform::transform(
+            &cat,
+            &[a.pattern.clone(), b.pattern.clone()],
+            &transform::TransformSettings::default(),
+        )?;
+        let side = 128;
+        let mut row = vec![marble.clone(), a.pattern.render(side, side)];
+        for f in transform::frames(&path, 6).iter().skip(1) {
+            row.push(f.render(side, side));
+        }
+        row.push(walnut.clone());
+        let refs: Vec<&ColorImage> = row.iter().collect();
+        imaging::save_color(&docs.join("procedural.png"), &side_by_side(&refs))?;
+    }
     println!("wrote {}", docs.display());
     Ok(())
 }

@@ -65,7 +65,7 @@ fn centre_crop(g: &Gray, w: usize, h: usize) -> Vec<f64> {
 /// the mean is removed, each magnitude is multiplied by its frequency's
 /// radius (which flattens the 1/f fall-off of natural images, so that all
 /// scales count; DC gets 0), and the result has unit length.
-fn weighted_spectrum(v: &[f64], w: usize, h: usize) -> Vec<f64> {
+pub(crate) fn weighted_spectrum(v: &[f64], w: usize, h: usize) -> Vec<f64> {
     let mean = v.iter().sum::<f64>() / v.len() as f64;
     let mut buf: Vec<Complex<f64>> = v.iter().map(|&x| Complex::new(x - mean, 0.0)).collect();
     let mut planner = FftPlanner::new();
@@ -116,13 +116,84 @@ pub fn spectrum_similarity(a: &ColorImage, b: &ColorImage) -> Result<f64> {
     let (la, lb) = (luminance(a), luminance(b));
     let fa = weighted_spectrum(&centre_crop(&la, w, h), w, h);
     let fb = weighted_spectrum(&centre_crop(&lb, w, h), w, h);
+    Ok(spectra_similarity(&fa, &fb))
+}
+
+/// S_F of two spectra made by [`Descriptors::of`] from images of one size.
+pub fn spectra_similarity(fa: &[f64], fb: &[f64]) -> f64 {
     let d = fa
         .iter()
-        .zip(&fb)
+        .zip(fb)
         .map(|(x, y)| (x - y) * (x - y))
         .sum::<f64>()
         .sqrt();
-    Ok((1.0 - d / std::f64::consts::SQRT_2).clamp(0.0, 1.0))
+    (1.0 - d / std::f64::consts::SQRT_2).clamp(0.0, 1.0)
+}
+
+/// The measures' descriptors of one image, computed once: S_F, S_L and the
+/// colour term of many candidates against one target (procedural matching,
+/// ARCHITECTURE §12) then cost one pass over each candidate.
+#[derive(Clone, Debug)]
+pub struct Descriptors {
+    pub width: usize,
+    pub height: usize,
+    /// The weighted, normalised magnitude spectrum of the luminance.
+    pub spectrum: Vec<f64>,
+    /// The histograms of the first 4 Laplacian band-pass levels.
+    pub bands: Vec<Vec<f64>>,
+    /// The cumulative histograms of R, G and B.
+    pub cdfs: [Vec<f64>; 3],
+}
+
+impl Descriptors {
+    /// The descriptors of `img` (at least 8×8).
+    pub fn of(img: &ColorImage) -> Result<Self> {
+        ensure!(
+            img.width >= 8 && img.height >= 8,
+            "images under 8×8 cannot be compared"
+        );
+        let l = luminance(img);
+        let (w, h) = (l.width, l.height);
+        let v: Vec<f64> = l.data.iter().map(|&x| f64::from(x)).collect();
+        Ok(Self {
+            width: w,
+            height: h,
+            spectrum: weighted_spectrum(&v, w, h),
+            bands: laplacian_bands(&l, 4)
+                .iter()
+                .map(|b| band_histogram(b))
+                .collect(),
+            cdfs: colour_cdfs(img),
+        })
+    }
+
+    /// S_F, S_L and the colour term of `other` against `self` (same size).
+    pub fn scores(&self, other: &Self) -> (f64, f64, f64) {
+        (
+            spectra_similarity(&self.spectrum, &other.spectrum),
+            histograms_distance(&self.bands, &other.bands),
+            cdfs_distance(&self.cdfs, &other.cdfs),
+        )
+    }
+}
+
+/// S_L of two sets of band histograms: the mean over the common levels of
+/// half the L1 distance.
+fn histograms_distance(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    let levels = a.len().min(b.len());
+    if levels == 0 {
+        return 0.0;
+    }
+    let mut s = 0.0;
+    for i in 0..levels {
+        s += 0.5
+            * a[i]
+                .iter()
+                .zip(&b[i])
+                .map(|(x, y)| (x - y).abs())
+                .sum::<f64>();
+    }
+    s / levels as f64
 }
 
 /// One 5-tap binomial blur and 2× decimation (edges clamped).
@@ -157,8 +228,17 @@ fn reduce(v: &[f64], w: usize, h: usize) -> (Vec<f64>, usize, usize) {
 /// Band-pass levels of a Laplacian pyramid: each level minus its reduced
 /// level brought back up (nearest neighbour).
 fn laplacian_bands(g: &Gray, levels: usize) -> Vec<Vec<f64>> {
-    let mut v: Vec<f64> = g.data.iter().map(|&x| f64::from(x)).collect();
-    let (mut w, mut h) = (g.width, g.height);
+    let v: Vec<f64> = g.data.iter().map(|&x| f64::from(x)).collect();
+    laplacian_bands_of(v, g.width, g.height, levels)
+}
+
+/// [`laplacian_bands`] of a `w`×`h` float image.
+pub(crate) fn laplacian_bands_of(
+    mut v: Vec<f64>,
+    mut w: usize,
+    mut h: usize,
+    levels: usize,
+) -> Vec<Vec<f64>> {
     let mut bands = Vec::new();
     for _ in 0..levels {
         if w < 8 || h < 8 {
@@ -198,36 +278,44 @@ pub fn laplacian_distance(a: &ColorImage, b: &ColorImage) -> Result<f64> {
         laplacian_bands(&luminance(a), 4),
         laplacian_bands(&luminance(b), 4),
     );
-    let levels = ba.len().min(bb.len());
-    ensure!(levels > 0, "images under 8×8 cannot be compared");
-    let mut s = 0.0;
-    for i in 0..levels {
-        let (ha, hb) = (band_histogram(&ba[i]), band_histogram(&bb[i]));
-        s += 0.5 * ha.iter().zip(&hb).map(|(x, y)| (x - y).abs()).sum::<f64>();
-    }
-    Ok(s / levels as f64)
+    ensure!(
+        !ba.is_empty() && !bb.is_empty(),
+        "images under 8×8 cannot be compared"
+    );
+    let ha: Vec<Vec<f64>> = ba.iter().map(|b| band_histogram(b)).collect();
+    let hb: Vec<Vec<f64>> = bb.iter().map(|b| band_histogram(b)).collect();
+    Ok(histograms_distance(&ha, &hb))
 }
 
 /// Mean over R, G, B of the 1-D earth mover's distance between the two
 /// images' normalised histograms, divided by 255: in [0, 1].
 pub fn colour_distance(a: &ColorImage, b: &ColorImage) -> f64 {
-    let hist = |img: &ColorImage, k: usize| {
-        let mut h = [0.0f64; 256];
+    cdfs_distance(&colour_cdfs(a), &colour_cdfs(b))
+}
+
+/// The cumulative normalised histograms of R, G and B.
+fn colour_cdfs(img: &ColorImage) -> [Vec<f64>; 3] {
+    let n = img.len().max(1) as f64;
+    std::array::from_fn(|k| {
+        let mut h = vec![0.0f64; 256];
         for p in img.rgb.chunks_exact(3) {
             h[p[k] as usize] += 1.0;
         }
-        let n = img.len().max(1) as f64;
-        h.map(|x| x / n)
-    };
+        let mut c = 0.0;
+        h.iter_mut().for_each(|x| {
+            c += *x / n;
+            *x = c;
+        });
+        h
+    })
+}
+
+/// The colour term of two sets of cumulative histograms: the mean over R, G,
+/// B of the earth mover's distance, divided by 255.
+fn cdfs_distance(a: &[Vec<f64>; 3], b: &[Vec<f64>; 3]) -> f64 {
     let mut total = 0.0;
     for k in 0..3 {
-        let (ha, hb) = (hist(a, k), hist(b, k));
-        let (mut ca, mut cb, mut emd) = (0.0, 0.0, 0.0);
-        for v in 0..256 {
-            ca += ha[v];
-            cb += hb[v];
-            emd += (ca - cb).abs();
-        }
+        let emd: f64 = a[k].iter().zip(&b[k]).map(|(x, y)| (x - y).abs()).sum();
         total += emd / 255.0;
     }
     total / 3.0

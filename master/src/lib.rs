@@ -23,6 +23,7 @@ pub mod compare;
 pub mod imaging;
 pub mod launch;
 pub mod parallel;
+pub mod procedural;
 pub mod search;
 pub mod tiles;
 pub mod ycbcr;

@@ -22,6 +22,8 @@ mod solid;
 mod tiles;
 pub use parallel::{MorphArgs, ParallelArgs, ReplayArgs};
 pub use solid::SolidArgs;
+mod procedural;
+pub use procedural::{MatchArgs, MatchCommand};
 pub use tiles::{read_index, CompareArgs, TilesCommand};
 
 const EXAMPLES: &str = "Examples:
@@ -37,6 +39,7 @@ const EXAMPLES: &str = "Examples:
   texsyn solid --view x=a.png --view y=b.png --view z=c.png --size 128 -o solid/
   texsyn tiles make sample.png --tiles 8 -o tiles/ && texsyn tiles assemble tiles/ --grid 8x8 -o wall.png
   texsyn compare sample.png out.png
+  texsyn match catalogue -o shaders.cat && texsyn match photo.png --catalogue shaders.cat -o match.png --params match.json
 
 Benchmarks are a separate binary: cargo run --release -p texsyn-bench -- paper";
 
@@ -85,6 +88,11 @@ pub enum Command {
     /// Compare two textures: JSON with S_F, S_L, colour, patch fidelity and seam scores.
     #[command(after_help = "Example: texsyn compare sample.png out.png")]
     Compare(CompareArgs),
+    /// Find the procedural shader and parameters that reproduce a texture, or transform one texture into another (Bourque–Dudek).
+    #[command(
+        after_help = "Examples:\n  texsyn match catalogue -o shaders.cat\n  texsyn match photo.png --catalogue shaders.cat -o match.png --params match.json\n  texsyn match transform a.png b.png --key k.png --frames 48 --catalogue shaders.cat -o frames/\n  texsyn match shaders"
+    )]
+    Match(MatchArgs),
 }
 
 #[derive(Subcommand, Debug)]
@@ -739,5 +747,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Replay(a) => parallel::run_replay(&a),
         Command::Solid(a) => solid::run(&a),
         Command::Compare(a) => tiles::run_compare(&a),
+        Command::Match(a) => procedural::run(&a),
     }
 }

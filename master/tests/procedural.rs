@@ -1,0 +1,374 @@
+//! Procedural matching and transformation (Bourque–Dudek, ARCHITECTURE
+//! §12): the similarity measures' properties, a deterministic catalogue,
+//! recovery of synthetic targets, `texsyn match` end to end, threads not
+//! changing a byte, and bad input refused with the fix named.
+//!
+//! The recovery test here is reduced (64² renders, a small catalogue, a
+//! few draws per shader) to stay quick; the full 10 draws per shader at the
+//! default catalogue are `texsyn-bench match`.
+
+mod common;
+
+use std::path::Path;
+
+use common::{ok, refused, s};
+use rand::{Rng, SeedableRng};
+use texsyn::compare::{laplacian_distance, spectrum_similarity};
+use texsyn::imaging::{self, ColorImage};
+use texsyn::procedural::catalogue::{BuildSettings, Catalogue};
+use texsyn::procedural::matching::{draw, recovery_trials, MatchSettings, Pattern};
+use texsyn::procedural::shaders::by_name;
+use texsyn::procedural::{Kind, LIBRARY};
+
+fn bytes(p: &Path) -> Vec<u8> {
+    std::fs::read(p).unwrap()
+}
+
+/// `img` shifted circularly by (dx, dy).
+fn rolled(img: &ColorImage, dx: usize, dy: usize) -> ColorImage {
+    let mut out = ColorImage::new(img.width, img.height);
+    for y in 0..img.height {
+        for x in 0..img.width {
+            out.set((x + dx) % img.width, (y + dy) % img.height, img.get(x, y));
+        }
+    }
+    out
+}
+
+/// `img` with uniform noise of ± `amp` grey levels added (seeded).
+fn noisy(img: &ColorImage, amp: i32, seed: u64) -> ColorImage {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let rgb = img
+        .rgb
+        .iter()
+        .map(|&v| (i32::from(v) + rng.random_range(-amp..=amp)).clamp(0, 255) as u8)
+        .collect();
+    ColorImage::from_vec(img.width, img.height, rgb)
+}
+
+#[test]
+fn s_f_and_s_l_identity_shift_and_noise() {
+    for name in ["pink_marble_color_128.png", "brick_color_96.png"] {
+        let img = common::texture(name);
+        assert_eq!(spectrum_similarity(&img, &img).unwrap(), 1.0, "{name}");
+        assert_eq!(laplacian_distance(&img, &img).unwrap(), 0.0, "{name}");
+        // The magnitude spectrum ignores circular shifts.
+        let shifted = rolled(&img, 17, 5);
+        let sf = spectrum_similarity(&img, &shifted).unwrap();
+        assert!(sf > 0.999_999, "{name}: S_F of a shift {sf}");
+        // More noise, less alike: S_F falls and S_L grows with its amplitude.
+        let mut last = (1.0, 0.0);
+        for amp in [4, 16, 48, 96] {
+            let n = noisy(&img, amp, 7);
+            let (sf, sl) = (
+                spectrum_similarity(&img, &n).unwrap(),
+                laplacian_distance(&img, &n).unwrap(),
+            );
+            assert!(
+                sf < last.0 && sl > last.1,
+                "{name} ±{amp}: S_F {sf}, S_L {sl} after {last:?}"
+            );
+            last = (sf, sl);
+        }
+    }
+}
+
+#[test]
+fn catalogue_sampling_is_deterministic_for_any_thread_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |f: &str| dir.path().join(f);
+    for t in ["1", "2"] {
+        ok(&[
+            "match",
+            "catalogue",
+            "-o",
+            s(&d(&format!("cat_{t}.json"))),
+            "--size",
+            "48",
+            "--samples",
+            "30",
+            "--shaders",
+            "stars,wood",
+            "--threads",
+            t,
+            "-q",
+        ]);
+    }
+    assert!(bytes(&d("cat_1.json")) == bytes(&d("cat_2.json")));
+    let cat = Catalogue::load(&d("cat_1.json")).unwrap();
+    assert_eq!(cat.shaders.len(), 2);
+    for sc in &cat.shaders {
+        assert_eq!(sc.samples.len(), 30);
+        let shader = by_name(&sc.shader).unwrap();
+        for x in &sc.samples {
+            for (p, v) in shader.params.iter().zip(&x.params) {
+                assert!(*v >= p.min && *v <= p.max, "{} {v}", p.name);
+                if p.kind == Kind::Integer {
+                    assert_eq!(v.fract(), 0.0);
+                }
+            }
+        }
+    }
+    // The same as a library build, written the same way.
+    let lib = Catalogue::build(
+        &BuildSettings {
+            size: 48,
+            samples: 30,
+            shaders: Some(vec!["stars".into(), "wood".into()]),
+        },
+        &|| {},
+    )
+    .unwrap();
+    assert!(serde_json::to_vec(&lib).unwrap() == bytes(&d("cat_1.json")));
+}
+
+#[test]
+fn synthetic_targets_are_recovered_with_integers_exact() {
+    // Reduced: 64² renders, 80 samples per shader, 2 draws per shader.
+    let cat = Catalogue::build(
+        &BuildSettings {
+            size: 64,
+            samples: 80,
+            shaders: None,
+        },
+        &|| {},
+    )
+    .unwrap();
+    let settings = MatchSettings::default();
+    let mut recovered = 0;
+    let mut total = 0;
+    let mut integers_wrong = Vec::new();
+    for shader in LIBRARY {
+        let trials = recovery_trials(shader, 2, 1000, &cat, &settings, 0.05).unwrap();
+        for t in &trials {
+            total += 1;
+            recovered += usize::from(t.recovered);
+            for (i, p) in shader.params.iter().enumerate() {
+                if p.kind == Kind::Integer && t.truth.params[i] != t.found.pattern.params[i] {
+                    integers_wrong.push(format!(
+                        "{} {}: {} for {}",
+                        shader.name, p.name, t.found.pattern.params[i], t.truth.params[i]
+                    ));
+                }
+            }
+            // Whatever the parameters, the match resembles its target.
+            assert!(t.found.s_f > 0.4, "{}: S_F {}", shader.name, t.found.s_f);
+        }
+    }
+    eprintln!("recovered {recovered} of {total}; integers wrong: {integers_wrong:?}");
+    assert!(
+        recovered * 10 >= total * 7,
+        "recovered {recovered} of {total}"
+    );
+    assert!(integers_wrong.len() <= 1, "{integers_wrong:?}");
+}
+
+/// A small catalogue file of `shaders` in `dir`.
+fn small_catalogue(dir: &Path, shaders: &str) -> std::path::PathBuf {
+    let cat = dir.join("cat.json");
+    ok(&[
+        "match",
+        "catalogue",
+        "-o",
+        s(&cat),
+        "--size",
+        "64",
+        "--samples",
+        "60",
+        "--shaders",
+        shaders,
+        "-q",
+    ]);
+    cat
+}
+
+#[test]
+fn match_writes_the_render_and_the_parameters_the_same_for_any_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |f: &str| dir.path().join(f);
+    let cat = small_catalogue(dir.path(), "stripes,spots,clouds");
+    let truth = Pattern {
+        shader: by_name("spots").unwrap(),
+        params: vec![6.0, 0.3, 0.2],
+        colours: [[200.0, 180.0, 40.0], [30.0, 20.0, 90.0]],
+    };
+    imaging::save_color(&d("target.png"), &truth.render(64, 64)).unwrap();
+    for t in ["1", "2"] {
+        ok(&[
+            "match",
+            s(&d("target.png")),
+            "--catalogue",
+            s(&cat),
+            "-o",
+            s(&d(&format!("out_{t}.png"))),
+            "--params",
+            s(&d(&format!("p_{t}.json"))),
+            "--size",
+            "96x80",
+            "--threads",
+            t,
+            "-q",
+        ]);
+    }
+    assert!(bytes(&d("out_1.png")) == bytes(&d("out_2.png")));
+    let json = |t: &str| -> serde_json::Value {
+        serde_json::from_slice(&bytes(&d(&format!("p_{t}.json")))).unwrap()
+    };
+    let (a, b) = (json("1"), json("2"));
+    for key in [
+        "shader",
+        "parameters",
+        "colours",
+        "s_f",
+        "s_l",
+        "colour",
+        "iterations",
+        "evaluations",
+    ] {
+        assert_eq!(a[key], b[key], "{key}");
+    }
+    assert!(a["seconds"].as_f64().unwrap() > 0.0);
+    assert_eq!(a["shader"], "spots");
+    assert_eq!(a["parameters"]["spots"], 6.0);
+    let found = Pattern::from_json(&a).unwrap();
+    assert!(
+        texsyn::procedural::matching::recovered(&truth, &found, 0.05),
+        "{a}"
+    );
+    let out = imaging::load_color(&d("out_1.png")).unwrap();
+    assert_eq!((out.width, out.height), (96, 80));
+    // Without --params the JSON goes to stdout.
+    let r = ok(&[
+        "match",
+        s(&d("target.png")),
+        "--catalogue",
+        s(&cat),
+        "--shaders",
+        "spots",
+        "-q",
+    ]);
+    let v: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+    assert_eq!(v["shader"], "spots");
+}
+
+#[test]
+fn transform_writes_frames_gif_and_path_through_a_key_and_a_jump() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |f: &str| dir.path().join(f);
+    let cat = small_catalogue(dir.path(), "stripes,clouds");
+    let a = draw(by_name("stripes").unwrap(), 1);
+    let k = draw(by_name("stripes").unwrap(), 2);
+    let b = draw(by_name("clouds").unwrap(), 3);
+    for (name, p) in [("a.json", &a), ("k.json", &k), ("b.json", &b)] {
+        std::fs::write(d(name), p.to_json().to_string()).unwrap();
+    }
+    ok(&[
+        "match",
+        "transform",
+        s(&d("a.json")),
+        s(&d("b.json")),
+        "--key",
+        s(&d("k.json")),
+        "--frames",
+        "12",
+        "--size",
+        "48x48",
+        "--catalogue",
+        s(&cat),
+        "-o",
+        s(&d("frames")),
+        "-q",
+    ]);
+    for i in 0..12 {
+        assert!(d(&format!("frames/frame_{i:04}.png")).is_file());
+    }
+    // The ends are the stops as written (JSON rounds to 4 decimals).
+    let (a, b) = (
+        Pattern::from_json(&a.to_json()).unwrap(),
+        Pattern::from_json(&b.to_json()).unwrap(),
+    );
+    let first = imaging::load_color(&d("frames/frame_0000.png")).unwrap();
+    assert!(first.rgb == a.render(48, 48).rgb, "frame 0 is A");
+    let last = imaging::load_color(&d("frames/frame_0011.png")).unwrap();
+    assert!(last.rgb == b.render(48, 48).rgb, "the last frame is B");
+    let gif = bytes(&d("frames/transform.gif"));
+    assert_eq!(&gif[..6], b"GIF89a");
+    let report: serde_json::Value =
+        serde_json::from_slice(&bytes(&d("frames/transform.json"))).unwrap();
+    assert_eq!(report["jumps"], 1, "stripes to clouds jumps once");
+    assert_eq!(report["frames"].as_array().unwrap().len(), 12);
+    assert_eq!(report["stops"].as_array().unwrap().len(), 3);
+    // The frames change gradually: no step between adjacent frames is a
+    // large share of the whole way (the jump may be one).
+    let frames: Vec<ColorImage> = (0..12)
+        .map(|i| imaging::load_color(&d(&format!("frames/frame_{i:04}.png"))).unwrap())
+        .collect();
+    let steps: Vec<f64> = frames
+        .windows(2)
+        .map(|w| 1.0 - spectrum_similarity(&w[0], &w[1]).unwrap())
+        .collect();
+    let total: f64 = steps.iter().sum();
+    let big = steps.iter().filter(|&&x| x > 0.5 * total).count();
+    assert!(big <= 1, "{steps:?}");
+}
+
+#[test]
+fn bad_input_is_refused_with_the_fix_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |f: &str| dir.path().join(f);
+    let target = common::assets().join("brick_color_96.png");
+    let e = refused(&["match", s(&target), "-o", s(&d("o.png"))]);
+    assert!(e.contains("texsyn match catalogue"), "{e}");
+    std::fs::write(d("junk.json"), "{\"not\": 1}").unwrap();
+    let e = refused(&[
+        "match",
+        s(&target),
+        "--catalogue",
+        s(&d("junk.json")),
+        "-o",
+        s(&d("o.png")),
+    ]);
+    assert!(
+        e.contains("not a texsyn catalogue") && e.contains("rebuild"),
+        "{e}"
+    );
+    let e = refused(&[
+        "match",
+        "catalogue",
+        "-o",
+        s(&d("c.json")),
+        "--shaders",
+        "plaid",
+    ]);
+    assert!(
+        e.contains("unknown shader 'plaid'") && e.contains("stripes"),
+        "{e}"
+    );
+    let e = refused(&["match", "catalogue", "-o", s(&d("c.json")), "--size", "8"]);
+    assert!(e.contains("32..=512"), "{e}");
+    let e = refused(&["match", "catalogue", "-o", s(&d("missing/c.json"))]);
+    assert!(e.contains("does not exist"), "{e}");
+    let e = refused(&[
+        "match",
+        s(&target),
+        "--catalogue",
+        s(&d("junk.json")),
+        "-o",
+        s(&target),
+    ]);
+    assert!(e.contains("input"), "{e}");
+    let e = refused(&["match"]);
+    assert!(e.contains("give the target image"), "{e}");
+    let e = refused(&[
+        "match",
+        "transform",
+        s(&target),
+        s(&target),
+        "--frames",
+        "1",
+        "-o",
+        s(&d("f")),
+    ]);
+    assert!(e.contains("--frames 1"), "{e}");
+    assert!(!e.contains("panicked"), "{e}");
+}
