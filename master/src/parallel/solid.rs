@@ -397,6 +397,9 @@ pub fn synthesize(
         state = Some((coords, ls));
         last_weights = Some(lw);
     }
+    // The blend is done with; freed before the colour and the per-view
+    // split, which are the peak.
+    drop(blend);
     let (coords, _) = state.expect("at least one level");
     let weights = last_weights.expect("at least one level");
     let mut colour = vec![0u8; voxels * 3];
