@@ -61,6 +61,17 @@ fn centre_crop(g: &Gray, w: usize, h: usize) -> Vec<f64> {
     v
 }
 
+/// The signed frequency of FFT bin `k` of `n`, in cycles per pixel
+/// (bins past `n/2` are the negative frequencies).
+pub(crate) fn frequency(k: usize, n: usize) -> f64 {
+    let k = if k > n / 2 {
+        k as f64 - n as f64
+    } else {
+        k as f64
+    };
+    k / n as f64
+}
+
 /// The radially weighted, normalised Fourier magnitude of a `w`×`h` image:
 /// the mean is removed, each magnitude is multiplied by its frequency's
 /// radius (which flattens the 1/f fall-off of natural images, so that all
@@ -84,18 +95,10 @@ pub(crate) fn weighted_spectrum(v: &[f64], w: usize, h: usize) -> Vec<f64> {
             buf[y * w + x] = col[y];
         }
     }
-    let freq = |k: usize, n: usize| {
-        let k = if k > n / 2 {
-            k as f64 - n as f64
-        } else {
-            k as f64
-        };
-        k / n as f64
-    };
     let mut out: Vec<f64> = (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
         .map(|(x, y)| {
-            let r = freq(x, w).hypot(freq(y, h));
+            let r = frequency(x, w).hypot(frequency(y, h));
             buf[y * w + x].norm() * r
         })
         .collect();

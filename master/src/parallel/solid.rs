@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use super::appearance::Pca;
 use super::candidates::Candidates;
 use super::coords::jitter_offset;
-use super::synth::{exemplar_seed, ExemplarLevel, Neighbourhood, ParallelSettings};
+use super::synth::{exemplar_seed, level_count, ExemplarLevel, Neighbourhood, ParallelSettings};
 use crate::imaging::ColorImage;
 use crate::search::SearchBackend;
 
@@ -236,12 +236,7 @@ pub fn synthesize(
             }
         })
         .collect();
-    let smallest = uniq
-        .iter()
-        .map(|e| e.width.min(e.height))
-        .min()
-        .unwrap_or(8);
-    let levels = (usize::BITS - (smallest / 4).max(1).leading_zeros()) as usize;
+    let levels = level_count(&uniq);
     let pca = Pca::fit(&uniq)?;
     let dims = pca.components.len();
     let need = memory_needed(size, views.len(), materials, dims);

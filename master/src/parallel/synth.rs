@@ -376,14 +376,7 @@ pub fn morph(
         weights.iter().all(|w| w.len() == width * height),
         "every weight map must be {width}×{height}"
     );
-    let smallest = exemplars
-        .iter()
-        .map(|e| e.width.min(e.height))
-        .min()
-        .unwrap_or(8);
-    // The coarsest step is the largest power of two up to a quarter of the
-    // smallest exemplar side.
-    let levels = (usize::BITS - (smallest / 4).max(1).leading_zeros()) as usize;
+    let levels = level_count(exemplars);
     let pca = Pca::fit(exemplars)?;
     let points = s.neighbourhood.points();
     let m = exemplars.len();
@@ -462,6 +455,17 @@ pub fn morph(
         candidate_strides: strides,
         explained_variance: pca.explained,
     })
+}
+
+/// Levels of a synthesis from `exemplars`: the coarsest step is the largest
+/// power of two up to a quarter of the smallest exemplar side.
+pub(super) fn level_count(exemplars: &[&ColorImage]) -> usize {
+    let smallest = exemplars
+        .iter()
+        .map(|e| e.width.min(e.height))
+        .min()
+        .unwrap_or(8);
+    (usize::BITS - (smallest / 4).max(1).leading_zeros()) as usize
 }
 
 /// Exemplar j's jitter seed (exemplar 0 keeps `seed`, so a one-exemplar

@@ -17,7 +17,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::compare::{laplacian_bands_of, weighted_spectrum};
+use crate::compare::{frequency as freq, laplacian_bands_of, weighted_spectrum};
 use crate::imaging::ColorImage;
 use crate::ycbcr::luminance;
 
@@ -125,14 +125,6 @@ impl Structure {
 fn binned_spectrum(z: &[f64], w: usize, h: usize) -> Vec<f32> {
     let s = weighted_spectrum(z, w, h);
     let mut bins = vec![0.0f64; RADIAL * ANGULAR];
-    let freq = |k: usize, n: usize| {
-        let k = if k > n / 2 {
-            k as f64 - n as f64
-        } else {
-            k as f64
-        };
-        k / n as f64
-    };
     for y in 0..h {
         for x in 0..w {
             let (fx, fy) = (freq(x, w), freq(y, h));
