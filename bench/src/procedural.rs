@@ -40,6 +40,10 @@ pub struct MatchArgs {
     /// Skip the recovery part.
     #[arg(long)]
     no_recovery: bool,
+    /// Print every trial that is not recovered: truth, match and both
+    /// objectives.
+    #[arg(long)]
+    verbose: bool,
 }
 
 pub fn run(a: &MatchArgs) -> Result<()> {
@@ -76,6 +80,20 @@ pub fn run(a: &MatchArgs) -> Result<()> {
             }
             let trials = recovery_trials(shader, a.draws, a.seed, &cat, &settings, 0.05)?;
             let ok = trials.iter().filter(|t| t.recovered).count();
+            if a.verbose {
+                for t in trials.iter().filter(|t| !t.recovered) {
+                    println!(
+                        "  missed: truth {:?} (objective {:.4})\n          found {:?} (objective {:.4}, worst error {:.3}, {} renders in {:.1} s)",
+                        t.truth.params,
+                        t.truth_objective,
+                        t.found.pattern.params,
+                        t.found.objective,
+                        t.worst_error,
+                        t.found.evaluations,
+                        t.found.seconds
+                    );
+                }
+            }
             let ints = trials
                 .iter()
                 .filter(|t| {

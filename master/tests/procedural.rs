@@ -157,10 +157,10 @@ fn synthetic_targets_are_recovered_with_integers_exact() {
     }
     eprintln!("recovered {recovered} of {total}; integers wrong: {integers_wrong:?}");
     assert!(
-        recovered * 10 >= total * 7,
+        recovered * 10 >= total * 8,
         "recovered {recovered} of {total}"
     );
-    assert!(integers_wrong.len() <= 1, "{integers_wrong:?}");
+    assert!(integers_wrong.is_empty(), "{integers_wrong:?}");
 }
 
 /// A small catalogue file of `shaders` in `dir`.
@@ -252,7 +252,7 @@ fn match_writes_the_render_and_the_parameters_the_same_for_any_threads() {
 }
 
 #[test]
-fn transform_writes_frames_gif_and_path_through_a_key_and_a_jump() {
+fn transform_writes_frames_gif_webp_and_path_through_a_key_and_a_jump() {
     let dir = tempfile::tempdir().unwrap();
     let d = |f: &str| dir.path().join(f);
     let cat = small_catalogue(dir.path(), "stripes,clouds");
@@ -293,6 +293,23 @@ fn transform_writes_frames_gif_and_path_through_a_key_and_a_jump() {
     assert!(last.rgb == b.render(48, 48).rgb, "the last frame is B");
     let gif = bytes(&d("frames/transform.gif"));
     assert_eq!(&gif[..6], b"GIF89a");
+    // The animated WebP is lossless: its frames are the PNG frames.
+    let webp = image::codecs::webp::WebPDecoder::new(std::io::Cursor::new(bytes(&d(
+        "frames/transform.webp",
+    ))))
+    .unwrap();
+    let anim = image::AnimationDecoder::into_frames(webp)
+        .collect_frames()
+        .unwrap();
+    assert_eq!(anim.len(), 12);
+    for (k, f) in [(0, &first), (11, &last)] {
+        let rgb: Vec<u8> = anim[k]
+            .buffer()
+            .pixels()
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect();
+        assert!(rgb == f.rgb, "WebP frame {k} is the PNG frame");
+    }
     let report: serde_json::Value =
         serde_json::from_slice(&bytes(&d("frames/transform.json"))).unwrap();
     assert_eq!(report["jumps"], 1, "stripes to clouds jumps once");

@@ -9,7 +9,7 @@ use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::{parse_size, paths, thread_pool};
-use crate::imaging::{self, ColorImage};
+use crate::imaging::{self, animation, ColorImage};
 use crate::procedural::catalogue::{self, BuildSettings, Catalogue};
 use crate::procedural::matching::{match_texture, MatchResult, MatchSettings, Pattern};
 use crate::procedural::transform::{self, TransformSettings};
@@ -55,6 +55,10 @@ pub struct SearchArgs {
     /// Drop a shader whose best catalogue distance exceeds the best shader's by more than this.
     #[arg(long, default_value_t = 0.1)]
     pub disparity: f64,
+    /// Starting points, best after their first simplex run, that go on to
+    /// the sweeps and the whole-number search.
+    #[arg(long, default_value_t = 3)]
+    pub finalists: usize,
     /// Threads (default: all cores); the result is the same for any count.
     #[arg(long)]
     pub threads: Option<usize>,
@@ -72,6 +76,7 @@ impl TryFrom<&SearchArgs> for MatchSettings {
             max_iters: a.iterations,
             shaders: (!a.shaders.is_empty()).then(|| a.shaders.clone()),
             disparity: a.disparity,
+            finalists: a.finalists,
         };
         s.validate()?;
         Ok(s)
@@ -126,7 +131,7 @@ pub struct TransformArgs {
     /// Number of frames (at least 2).
     #[arg(long)]
     pub frames: usize,
-    /// Output directory: frame_0000.png..., transform.gif, transform.json.
+    /// Output directory: frame_0000.png..., transform.gif, transform.webp, transform.json.
     #[arg(short, long)]
     pub output: PathBuf,
     /// The catalogue built by `texsyn match catalogue`.
@@ -141,9 +146,9 @@ pub struct TransformArgs {
     /// Largest distance (structure + colour term) between adjacent path points before a midpoint is inserted.
     #[arg(long, default_value_t = 0.1)]
     pub threshold: f64,
-    /// Delay between GIF frames in milliseconds (0: no GIF).
-    #[arg(long, default_value_t = 80)]
-    pub gif_delay: u32,
+    /// Delay between the animations' frames in milliseconds (0: no GIF and no WebP).
+    #[arg(long, alias = "gif-delay", default_value_t = 80)]
+    pub delay: u32,
     #[command(flatten)]
     pub search: SearchArgs,
 }
@@ -353,6 +358,7 @@ fn run_transform(t: &TransformArgs) -> Result<()> {
         .map(|i| t.output.join(format!("frame_{i:04}.png")))
         .chain([
             t.output.join("transform.gif"),
+            t.output.join("transform.webp"),
             t.output.join("transform.json"),
         ])
         .collect();
@@ -380,9 +386,11 @@ fn run_transform(t: &TransformArgs) -> Result<()> {
         b.inc(1);
     }
     b.finish_and_clear();
-    if t.gif_delay > 0 {
-        let gif = encode_gif(&images, t.gif_delay)?;
+    if t.delay > 0 {
+        let gif = animation::encode_gif(&images, t.delay)?;
         imaging::save_bytes(&names[t.frames], &gif)?;
+        let webp = animation::encode_webp(&images, t.delay)?;
+        imaging::save_bytes(&names[t.frames + 1], &webp)?;
     }
     let report = serde_json::json!({
         "stops": stops.iter().map(Pattern::to_json).collect::<Vec<_>>(),
@@ -394,7 +402,7 @@ fn run_transform(t: &TransformArgs) -> Result<()> {
         "frames": frames.iter().map(Pattern::to_json).collect::<Vec<_>>(),
     });
     imaging::save_bytes(
-        &names[t.frames + 1],
+        &names[t.frames + 2],
         serde_json::to_string_pretty(&report)?.as_bytes(),
     )?;
     if !q {
@@ -413,31 +421,4 @@ fn run_transform(t: &TransformArgs) -> Result<()> {
         );
     }
     Ok(())
-}
-
-/// The frames as an endlessly looping animated GIF.
-fn encode_gif(images: &[ColorImage], delay_ms: u32) -> Result<Vec<u8>> {
-    use image::codecs::gif::{GifEncoder, Repeat};
-    use image::{Delay, Frame, RgbaImage};
-    let mut out = Vec::new();
-    {
-        let mut enc = GifEncoder::new_with_speed(&mut out, 10);
-        enc.set_repeat(Repeat::Infinite)?;
-        for img in images {
-            let rgba: Vec<u8> = img
-                .rgb
-                .chunks_exact(3)
-                .flat_map(|p| [p[0], p[1], p[2], 255])
-                .collect();
-            let buf = RgbaImage::from_raw(img.width as u32, img.height as u32, rgba)
-                .context("frame buffer")?;
-            enc.encode_frame(Frame::from_parts(
-                buf,
-                0,
-                0,
-                Delay::from_numer_denom_ms(delay_ms, 1),
-            ))?;
-        }
-    }
-    Ok(out)
 }

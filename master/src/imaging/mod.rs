@@ -29,6 +29,7 @@
 
 use std::path::PathBuf;
 
+pub mod animation;
 mod atomic;
 mod coordmap;
 mod deep;

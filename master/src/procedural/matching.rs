@@ -130,6 +130,9 @@ pub struct MatchSettings {
     /// A shader is dropped when its best catalogue distance exceeds the best
     /// shader's by more than this.
     pub disparity: f64,
+    /// Starting points that go on to the sweeps and the whole-number search:
+    /// the best after their first simplex run.
+    pub finalists: usize,
 }
 
 impl Default for MatchSettings {
@@ -139,6 +142,7 @@ impl Default for MatchSettings {
             max_iters: 80,
             shaders: None,
             disparity: 0.1,
+            finalists: 3,
         }
     }
 }
@@ -154,6 +158,11 @@ impl MatchSettings {
             (1..=10_000).contains(&self.max_iters),
             "--iterations {} must be in 1..=10000",
             self.max_iters
+        );
+        ensure!(
+            (1..=100).contains(&self.finalists),
+            "--finalists {} must be in 1..=100",
+            self.finalists
         );
         ensure!(
             self.disparity >= 0.0,
@@ -172,8 +181,11 @@ pub struct Candidate {
     /// Global-search distance of the starting sample (structure, 0..1).
     pub catalogue_distance: f64,
     pub admissibility: f64,
-    /// The refined objective (1 − S_F) + S_L + colour.
-    pub objective: f64,
+    /// The objective after the first simplex run (the screening).
+    pub screened: f64,
+    /// The objective after the sweeps and the whole-number search, for the
+    /// finalists only.
+    pub objective: Option<f64>,
     pub iterations: u64,
 }
 
@@ -348,41 +360,38 @@ impl Target {
 /// image side (in frequency bins).
 pub const BLURS: [f64; 2] = [1.0 / 48.0, 1.0 / 16.0];
 
-/// The S_F spectrum of `d` blurred (wrapping, separable Gaussian) at each
-/// of [`BLURS`], each of unit length. The spectrum of a periodic pattern is
-/// a set of peaks, so S_F alone only sees a candidate very near the target;
-/// the blurred spectra give the simplex a slope from further away.
+/// The Gaussian low-pass (cycles per pixel) on the blurred spectra: they
+/// are there to lead the search to the fundamental's basin, and the high
+/// harmonics of a sharp pattern (folded back by point sampling) move
+/// erratically with its frequency.
+pub const LOW_PASS: f64 = 0.12;
+
+/// The S_F spectrum of `d`, low-passed by [`LOW_PASS`] and blurred
+/// (wrapping; three box passes per axis, a close Gaussian) at each of
+/// [`BLURS`], each of unit length. The spectrum of a periodic pattern is a
+/// set of peaks, so S_F alone only sees a candidate very near the target;
+/// the blurred spectra give the search a slope from further away.
 pub fn blurred_spectra(d: &Descriptors) -> Vec<Vec<f64>> {
     let (w, h) = (d.width, d.height);
+    let pass = |n: usize| -> Vec<f64> {
+        (0..n)
+            .map(|k| (-(crate::compare::frequency(k, n) / LOW_PASS).powi(2)).exp())
+            .collect()
+    };
+    let (gx, gy) = (pass(w), pass(h));
+    let low: Vec<f64> = (0..w * h)
+        .map(|i| d.spectrum[i] * gx[i % w] * gy[i / w])
+        .collect();
     BLURS
         .iter()
         .map(|&b| {
             let sigma = b * w.min(h) as f64;
-            let r = (3.0 * sigma).ceil() as isize;
-            let k: Vec<f64> = (-r..=r)
-                .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
-                .collect();
-            let mut tmp = vec![0.0; w * h];
-            for y in 0..h {
-                for x in 0..w {
-                    let mut s = 0.0;
-                    for (j, kv) in k.iter().enumerate() {
-                        let xx = (x as isize + j as isize - r).rem_euclid(w as isize) as usize;
-                        s += kv * d.spectrum[y * w + xx];
-                    }
-                    tmp[y * w + x] = s;
-                }
-            }
-            let mut out = vec![0.0; w * h];
-            for y in 0..h {
-                for x in 0..w {
-                    let mut s = 0.0;
-                    for (j, kv) in k.iter().enumerate() {
-                        let yy = (y as isize + j as isize - r).rem_euclid(h as isize) as usize;
-                        s += kv * tmp[yy * w + x];
-                    }
-                    out[y * w + x] = s;
-                }
+            // Three boxes of width 2r + 1 have variance 3·((2r + 1)² − 1)/12.
+            let r = (((4.0 * sigma * sigma + 1.0).sqrt() - 1.0) / 2.0).round() as usize;
+            let mut out = low.clone();
+            for _ in 0..3 {
+                box_blur(&mut out, w, h, r, 1, w);
+                box_blur(&mut out, h, w, r, w, 1);
             }
             let norm = out.iter().map(|x| x * x).sum::<f64>().sqrt();
             if norm > 0.0 {
@@ -391,6 +400,27 @@ pub fn blurred_spectra(d: &Descriptors) -> Vec<Vec<f64>> {
             out
         })
         .collect()
+}
+
+/// A wrapping box blur of radius `r` along lines of `n` values `step`
+/// apart; `lines` such lines start `stride` apart.
+fn box_blur(v: &mut [f64], n: usize, lines: usize, r: usize, step: usize, stride: usize) {
+    if r == 0 || n == 0 {
+        return;
+    }
+    let width = (2 * r + 1) as f64;
+    let mut line = vec![0.0; n];
+    for l in 0..lines {
+        let at = |k: usize| l * stride + k * step;
+        for (k, x) in line.iter_mut().enumerate() {
+            *x = v[at(k)];
+        }
+        let mut sum: f64 = (0..=2 * r).map(|j| line[(j + n - r % n) % n]).sum();
+        for k in 0..n {
+            v[at(k)] = sum / width;
+            sum += line[(k + r + 1) % n] - line[(k + n - r % n) % n];
+        }
+    }
 }
 
 /// One evaluated parameter vector.
@@ -551,9 +581,87 @@ fn refine(
     Ok((p.evaluate(&params), iters))
 }
 
-/// [`refine`], then each whole-number parameter swept: every value is
-/// rendered with the other parameters kept, and the two best new values are
-/// refined with a shorter simplex run each; repeated while one helps.
+/// Values per parameter in a [`sweep`].
+const SWEEP: usize = 64;
+
+/// A coordinate sweep: each continuous parameter in turn is set to
+/// [`SWEEP`] values spread over its whole range (the others kept), and the
+/// best render is kept; repeated while a pass helps, at most twice. The
+/// objective of a periodic pattern along a frequency, an angle or an aspect
+/// is a comb of narrow basins, one per harmonic; a start in the wrong basin
+/// is one the simplex cannot leave, and a sweep crosses them all.
+fn sweep(shader: &'static Shader, from: Eval, target: &Target, evals: &AtomicU64) -> Eval {
+    let mut best = from;
+    for _pass in 0..2 {
+        let before = best.objective;
+        for (i, spec) in shader.params.iter().enumerate() {
+            if spec.kind == Kind::Integer {
+                continue;
+            }
+            let tried: Vec<Eval> = (0..SWEEP)
+                .into_par_iter()
+                .map(|k| {
+                    let t = match spec.kind {
+                        Kind::Periodic => k as f64 / SWEEP as f64,
+                        _ => k as f64 / (SWEEP - 1) as f64,
+                    };
+                    let mut p = best.params.clone();
+                    p[i] = spec.from_unit(t);
+                    evals.fetch_add(1, Ordering::Relaxed);
+                    evaluate(shader, &p, target)
+                })
+                .collect();
+            if let Some(e) = tried
+                .into_iter()
+                .min_by(|a, b| a.objective.total_cmp(&b.objective))
+                .filter(|e| e.objective < best.objective)
+            {
+                best = e;
+            }
+        }
+        if best.objective >= before - 1e-9 {
+            break;
+        }
+    }
+    best
+}
+
+/// [`sweep`] and [`refine`] in turn from `start`, while a round helps (at
+/// most three rounds): the simplex settles the coupled parameters, and a
+/// sweep after it moves the ones whose objective is a staircase at pixel
+/// scale (edge softness), where the simplex stalls.
+fn sweep_and_refine(
+    shader: &'static Shader,
+    start: &[f64],
+    max_iters: u64,
+    target: &Target,
+    evals: &AtomicU64,
+) -> Result<(Eval, u64)> {
+    evals.fetch_add(1, Ordering::Relaxed);
+    let mut best = evaluate(shader, &shader.legal(start), target);
+    let mut iters = 0;
+    for round in 0..3 {
+        let before = best.objective;
+        let swept = sweep(shader, best, target, evals);
+        if round > 0 && swept.objective >= before - 1e-6 {
+            best = swept;
+            break;
+        }
+        let (e, n) = refine(shader, &swept.params, max_iters, target, evals)?;
+        iters += n;
+        best = if e.objective <= swept.objective {
+            e
+        } else {
+            swept
+        };
+    }
+    Ok((best, iters))
+}
+
+/// [`sweep_and_refine`], then each whole-number parameter swept: every
+/// value is rendered with the other parameters kept, and the two best new
+/// values are swept and refined with a shorter simplex run each; repeated
+/// while one helps.
 fn refine_with_integers(
     shader: &'static Shader,
     start: &[f64],
@@ -561,7 +669,7 @@ fn refine_with_integers(
     target: &Target,
     evals: &AtomicU64,
 ) -> Result<(Eval, u64)> {
-    let (mut best, mut iters) = refine(shader, start, max_iters, target, evals)?;
+    let (mut best, mut iters) = sweep_and_refine(shader, start, max_iters, target, evals)?;
     let ints: Vec<usize> = (0..shader.params.len())
         .filter(|&i| shader.params[i].kind == Kind::Integer)
         .collect();
@@ -584,7 +692,7 @@ fn refine_with_integers(
             for &(_, v) in tried.iter().take(2) {
                 let mut p = best.params.clone();
                 p[i] = v;
-                let (e, n) = refine(shader, &p, max_iters.div_ceil(2), target, evals)?;
+                let (e, n) = sweep_and_refine(shader, &p, max_iters.div_ceil(2), target, evals)?;
                 iters += n;
                 if e.objective < best.objective - 1e-9 {
                     best = e;
@@ -688,26 +796,55 @@ pub fn match_texture(
     let target = Target::new(target, cat.size)?;
     let starts = starting_points(cat, &target, settings)?;
     let evals = AtomicU64::new(0);
-    let results: Vec<Result<(Eval, u64)>> = starts
+    // Screening: one simplex run from every start.
+    let screened: Vec<(Eval, u64)> = starts
         .par_iter()
-        .map(|s| refine_with_integers(s.shader, &s.params, settings.max_iters, &target, &evals))
-        .collect();
-    let mut candidates = Vec::new();
-    let mut best: Option<(usize, Eval, u64)> = None;
-    for (k, (s, r)) in starts.iter().zip(results).enumerate() {
-        let (e, iters) = r?;
-        candidates.push(Candidate {
+        .map(|s| refine(s.shader, &s.params, settings.max_iters, &target, &evals))
+        .collect::<Result<_>>()?;
+    let mut order: Vec<usize> = (0..starts.len()).collect();
+    order.sort_by(|&a, &b| {
+        screened[a]
+            .0
+            .objective
+            .total_cmp(&screened[b].0.objective)
+            .then(a.cmp(&b))
+    });
+    order.truncate(settings.finalists);
+    // The finalists: sweeps, simplex runs and the whole-number search.
+    let finals: Vec<(usize, Eval, u64)> = order
+        .par_iter()
+        .map(|&k| {
+            let (e, n) = refine_with_integers(
+                starts[k].shader,
+                &screened[k].0.params,
+                settings.max_iters,
+                &target,
+                &evals,
+            )?;
+            Ok((k, e, n + screened[k].1))
+        })
+        .collect::<Result<_>>()?;
+    let mut candidates: Vec<Candidate> = starts
+        .iter()
+        .zip(&screened)
+        .map(|(s, (e, n))| Candidate {
             shader: s.shader.name.to_string(),
             catalogue_distance: round(s.distance, 5),
             admissibility: round(s.admissibility, 3),
-            objective: round(e.objective, 5),
-            iterations: iters,
-        });
+            screened: round(e.objective, 5),
+            objective: None,
+            iterations: *n,
+        })
+        .collect();
+    let mut best: Option<(usize, Eval, u64)> = None;
+    for (k, e, iters) in finals {
+        candidates[k].objective = Some(round(e.objective, 5));
+        candidates[k].iterations = iters;
         tracing::debug!(
-            shader = s.shader.name,
+            shader = starts[k].shader.name,
             objective = e.objective,
             iters,
-            "start refined"
+            "finalist refined"
         );
         if best.as_ref().is_none_or(|b| e.objective < b.1.objective) {
             best = Some((k, e, iters));
@@ -806,6 +943,33 @@ mod tests {
     use crate::procedural::shaders::by_name;
 
     #[test]
+    fn box_blur_is_the_wrapped_moving_mean() {
+        let (w, h) = (13, 7);
+        let v: Vec<f64> = (0..w * h).map(|i| ((i * 37) % 11) as f64).collect();
+        for r in 0..4 {
+            let mut rows = v.clone();
+            box_blur(&mut rows, w, h, r, 1, w);
+            let mut cols = v.clone();
+            box_blur(&mut cols, h, w, r, w, 1);
+            for y in 0..h {
+                for x in 0..w {
+                    let n = (2 * r + 1) as f64;
+                    let row: f64 = (0..=2 * r)
+                        .map(|j| v[y * w + (x + w + j - r) % w])
+                        .sum::<f64>()
+                        / n;
+                    let col: f64 = (0..=2 * r)
+                        .map(|j| v[((y + h + j - r) % h) * w + x])
+                        .sum::<f64>()
+                        / n;
+                    assert!((rows[y * w + x] - row).abs() < 1e-9);
+                    assert!((cols[y * w + x] - col).abs() < 1e-9);
+                }
+            }
+        }
+    }
+
+    #[test]
     fn colour_fit_recovers_the_colours_of_a_render() {
         let s = by_name("clouds").unwrap();
         let f = s.render_field(&[3.0, 0.5], 64, 64, 64);
@@ -845,6 +1009,10 @@ pub struct Trial {
     pub found: MatchResult,
     pub recovered: bool,
     pub worst_error: f64,
+    /// The objective of the true parameters against the target: above the
+    /// found one, the measures cannot tell them apart; below, the search
+    /// stopped short.
+    pub truth_objective: f64,
 }
 
 /// `draws` recovery trials of `shader` (seeds `seed`, `seed + 1`...):
@@ -867,7 +1035,10 @@ pub fn recovery_trials(
             let truth = draw(shader, seed + k);
             let target = truth.render(cat.size, cat.size);
             let found = match_texture(&target, cat, &settings)?;
+            let truth_objective =
+                evaluate(shader, &truth.params, &Target::new(&target, cat.size)?).objective;
             Ok(Trial {
+                truth_objective,
                 recovered: recovered(&truth, &found.pattern, tolerance),
                 worst_error: worst_error(&truth, &found.pattern),
                 truth,

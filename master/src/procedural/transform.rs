@@ -147,10 +147,13 @@ fn catalogue_path(cat: &Catalogue, a: &Pattern, b: &Pattern, n: f64) -> Vec<Patt
         describe(s, &b.params, cat.size),
     ];
     let mut params: Vec<Vec<f64>> = vec![a.params.clone(), b.params.clone()];
+    // Through visible samples only (see `visible`): flat ones sit close to
+    // everything in the standardised descriptor, and a path through them
+    // fades the pattern out.
     if let Some(samples) = cat.of(s.name) {
-        for x in &samples.samples {
-            structures.push(x.structure.clone());
-            params.push(x.params.clone());
+        for i in visible(s, &samples.samples) {
+            structures.push(samples.samples[i].structure.clone());
+            params.push(samples.samples[i].params.clone());
         }
     }
     let count = structures.len();
@@ -318,6 +321,33 @@ fn approach(s: &'static Shader, params: &[f64], other: &Structure, size: usize) 
     .params(&best)
 }
 
+/// A sample whose contrast is under this share of its shader's median is
+/// too flat to be a jump point; refinement may not take a jump point's
+/// contrast under this share of where it started.
+const FLAT: f64 = 0.5;
+
+/// The standard deviation of a pattern's values, rendered at 48².
+fn contrast(s: &Shader, params: &[f64]) -> f64 {
+    let f = s.render_field(params, 48, 48, 48);
+    let n = f.len() as f64;
+    let mean = f.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
+    (f.iter()
+        .map(|&v| (f64::from(v) - mean).powi(2))
+        .sum::<f64>()
+        / n)
+        .sqrt()
+}
+
+/// The indices of the samples whose contrast is at least [`FLAT`] times
+/// the median of the shader's samples.
+fn visible(s: &Shader, samples: &[super::catalogue::Sample]) -> Vec<usize> {
+    let c: Vec<f64> = samples.iter().map(|x| contrast(s, &x.params)).collect();
+    let mut sorted = c.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+    (0..c.len()).filter(|&i| c[i] >= FLAT * median).collect()
+}
+
 /// The jump points between shaders `k` and `l` (§4.3): parameters of each
 /// whose textures are closest, and their structure distance.
 pub fn jump_points(
@@ -331,26 +361,40 @@ pub fn jump_points(
         cat.of(l.name)
             .with_context(|| format!("the catalogue has no shader '{}'; rebuild it", l.name))?,
     );
-    let (_, i, j) = sk
-        .samples
+    // Only samples with a pattern to show: the descriptor is standardised,
+    // so a nearly flat texture's faint variations would otherwise make it
+    // look like anything, and the path would fade out at the jump.
+    let (vk, vl) = (visible(k, &sk.samples), visible(l, &sl.samples));
+    let (_, i, j) = vk
         .par_iter()
-        .enumerate()
-        .map(|(i, a)| {
-            sl.samples
-                .iter()
-                .enumerate()
-                .map(|(j, b)| (a.structure.distance(&b.structure), i, j))
+        .map(|&i| {
+            vl.iter()
+                .map(|&j| {
+                    (
+                        sk.samples[i].structure.distance(&sl.samples[j].structure),
+                        i,
+                        j,
+                    )
+                })
                 .fold((f64::INFINITY, 0, 0), |m, x| if x.0 < m.0 { x } else { m })
         })
         .collect::<Vec<_>>()
         .into_iter()
         .fold((f64::INFINITY, 0, 0), |m, x| if x.0 < m.0 { x } else { m });
     let (mut x, mut y) = (sk.samples[i].params.clone(), sl.samples[j].params.clone());
+    let (floor_k, floor_l) = (
+        FLAT * contrast(k, &sk.samples[i].params),
+        FLAT * contrast(l, &sl.samples[j].params),
+    );
     for _ in 0..3 {
         let sy = describe(l, &y, cat.size);
         let nx = approach(k, &x, &sy, cat.size);
         let sx = describe(k, &nx, cat.size);
         let ny = approach(l, &y, &sx, cat.size);
+        // Refinement must not trade the pattern away for a closer match.
+        if contrast(k, &nx) < floor_k || contrast(l, &ny) < floor_l {
+            break;
+        }
         let moved = unit_distance(k, &x, &nx).max(unit_distance(l, &y, &ny));
         x = nx;
         y = ny;
