@@ -256,9 +256,20 @@ fn transform_writes_frames_gif_webp_and_path_through_a_key_and_a_jump() {
     let dir = tempfile::tempdir().unwrap();
     let d = |f: &str| dir.path().join(f);
     let cat = small_catalogue(dir.path(), "stripes,clouds");
-    let a = draw(by_name("stripes").unwrap(), 1);
-    let k = draw(by_name("stripes").unwrap(), 2);
-    let b = draw(by_name("clouds").unwrap(), 3);
+    // A and the key dark-on-light, B light-on-dark: the jump must keep
+    // each side's orientation. (Between two stops of one shader with
+    // opposite orientations the colours cross through one grey; that fade
+    // is the straight path and is kept.)
+    let y = |c: &[f64; 3]| 0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2];
+    let oriented = |mut p: Pattern, dark_low: bool| {
+        if (y(&p.colours[0]) <= y(&p.colours[1])) != dark_low {
+            p.colours.swap(0, 1);
+        }
+        p
+    };
+    let a = oriented(draw(by_name("stripes").unwrap(), 1), true);
+    let k = oriented(draw(by_name("stripes").unwrap(), 2), true);
+    let b = oriented(draw(by_name("clouds").unwrap(), 3), false);
     for (name, p) in [("a.json", &a), ("k.json", &k), ("b.json", &b)] {
         std::fs::write(d(name), p.to_json().to_string()).unwrap();
     }
@@ -327,6 +338,26 @@ fn transform_writes_frames_gif_webp_and_path_through_a_key_and_a_jump() {
     let total: f64 = steps.iter().sum();
     let big = steps.iter().filter(|&&x| x > 0.5 * total).count();
     assert!(big <= 1, "{steps:?}");
+    // No frame fades out: each keeps at least a third of the contrast of
+    // the weaker end (the jump keeps each side's dark-light orientation,
+    // and flat samples are neither jump points nor path points).
+    let sd = |img: &ColorImage| {
+        let l = texsyn::ycbcr::luminance(img);
+        let n = l.data.len() as f64;
+        let m = l.data.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
+        (l.data
+            .iter()
+            .map(|&v| (f64::from(v) - m).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt()
+    };
+    let floor = sd(&frames[0]).min(sd(&frames[11])) / 3.0;
+    let contrasts: Vec<f64> = frames.iter().map(sd).collect();
+    assert!(
+        contrasts.iter().all(|&c| c >= floor),
+        "{contrasts:?} against {floor}"
+    );
 }
 
 #[test]

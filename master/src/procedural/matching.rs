@@ -279,6 +279,16 @@ impl ColourTarget {
     /// least-squares line per channel through (sorted pattern value, target
     /// colour at the same luminance rank), for the better of both signs.
     pub fn fit(&self, field: &[f32]) -> [[f64; 3]; 2] {
+        self.fit_signs(field, &[false, true])
+    }
+
+    /// [`ColourTarget::fit`] with the orientation given: the darker colour
+    /// at pattern value 0 when `dark_low`, at 1 otherwise.
+    pub fn fit_oriented(&self, field: &[f32], dark_low: bool) -> [[f64; 3]; 2] {
+        self.fit_signs(field, &[!dark_low])
+    }
+
+    fn fit_signs(&self, field: &[f32], flips: &[bool]) -> [[f64; 3]; 2] {
         let mut f: Vec<f32> = field.to_vec();
         f.sort_by(f32::total_cmp);
         let n = f.len().max(1);
@@ -300,7 +310,7 @@ impl ColourTarget {
             return [mean_c, mean_c];
         }
         let mut best = (f64::INFINITY, [mean_c, mean_c]);
-        for flip in [false, true] {
+        for &flip in flips {
             let col = |g: usize| self.groups[if flip { GROUPS - 1 - g } else { g }];
             let mut lo = [0.0; 3];
             let mut hi = [0.0; 3];

@@ -129,6 +129,21 @@ fn lerp_colours(a: &[[f64; 3]; 2], b: &[[f64; 3]; 2], t: f64) -> [[f64; 3]; 2] {
     std::array::from_fn(|k| std::array::from_fn(|i| a[k][i] + t * (b[k][i] - a[k][i])))
 }
 
+/// Whether the colour at pattern value 0 is the darker.
+fn dark_low(c: &[[f64; 3]; 2]) -> bool {
+    let y = |c: &[f64; 3]| 0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2];
+    y(&c[0]) <= y(&c[1])
+}
+
+/// `c`'s two colours in the orientation of `like`.
+fn oriented_like(c: &[[f64; 3]; 2], like: &[[f64; 3]; 2]) -> [[f64; 3]; 2] {
+    if dark_low(c) == dark_low(like) {
+        *c
+    } else {
+        [c[1], c[0]]
+    }
+}
+
 /// The pattern `t` of the way from `a` to `b` (same shader).
 fn between(a: &Pattern, b: &Pattern, t: f64) -> Pattern {
     Pattern {
@@ -432,17 +447,21 @@ pub fn transform(cat: &Catalogue, stops: &[Pattern], settings: &TransformSetting
             distance = d,
             "jump point"
         );
+        // Colours keep each side's orientation (which colour is darker):
+        // mixing a dark-on-light pattern's colours with a light-on-dark
+        // one's would meet at one grey and fade the frames out at the jump.
         let ja = Pattern {
             shader: a.shader,
             params: x,
-            colours: lerp_colours(&a.colours, &b.colours, 0.5),
+            colours: lerp_colours(&a.colours, &oriented_like(&b.colours, &a.colours), 0.5),
         };
         extend_within(cat, &ja, settings, &mut path);
         let field = b.shader.render_field(&y, cat.size, cat.size, cat.size);
         let jb = Pattern {
             shader: b.shader,
             params: y,
-            colours: ColourTarget::of(&ja.render(cat.size, cat.size)).fit(&field),
+            colours: ColourTarget::of(&ja.render(cat.size, cat.size))
+                .fit_oriented(&field, dark_low(&b.colours)),
         };
         let step = frame_distance(&descriptors(&ja, cat.size), &descriptors(&jb, cat.size));
         path.points.push(jb);
