@@ -245,15 +245,19 @@ fn main() -> Result<()> {
     }
     if want("procedural") {
         use texsyn::procedural::{catalogue, matching, transform};
-        println!("procedural: pink marble matched, then transformed into the walnut match");
+        println!("procedural: pink marble matched, then transformed into the leopard match");
         let t = std::time::Instant::now();
         let cat = catalogue::Catalogue::build(&catalogue::BuildSettings::default(), &|| {})?;
         println!("  catalogue {:.1} s", t.elapsed().as_secs_f64());
         let settings = matching::MatchSettings::default();
         let marble = imaging::load_color(&tex.join("pink_marble_color_128.png"))?;
-        let walnut = imaging::load_color(&root.join("../shared/textures/walnut_color_128.png"))?;
+        // A photo that another shader matches, so the row shows a jump.
+        let leopard = matching::analysis_image(
+            &imaging::load_color(&root.join("../shared/textures/leopard_color_64.png"))?,
+            128,
+        );
         let a = matching::match_texture(&marble, &cat, &settings)?;
-        let b = matching::match_texture(&walnut, &cat, &settings)?;
+        let b = matching::match_texture(&leopard, &cat, &settings)?;
         for m in [&a, &b] {
             println!(
                 "  {} S_F {:.3} S_L {:.3} colour {:.3} in {:.1} s",
@@ -270,7 +274,7 @@ fn main() -> Result<()> {
         for f in transform::frames(&path, 6).iter().skip(1) {
             row.push(f.render(side, side));
         }
-        row.push(walnut.clone());
+        row.push(leopard.clone());
         let refs: Vec<&ColorImage> = row.iter().collect();
         imaging::save_color(&docs.join("procedural.png"), &side_by_side(&refs))?;
     }
