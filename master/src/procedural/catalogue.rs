@@ -463,14 +463,7 @@ mod tests {
     #[test]
     fn subdivision_is_deterministic_and_covers_integer_values() {
         let s = by_name("bricks").unwrap();
-        let one = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
-        let two = rayon::ThreadPoolBuilder::new()
-            .num_threads(2)
-            .build()
-            .unwrap();
+        let [one, two] = crate::procedural::one_and_two_threads();
         let a = one.install(|| sample_shader(s, 48, 40, &|| {}));
         let b = two.install(|| sample_shader(s, 48, 40, &|| {}));
         assert_eq!(a, b);

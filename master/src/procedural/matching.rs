@@ -456,11 +456,7 @@ struct Problem<'a> {
 
 impl Problem<'_> {
     fn params(&self, x: &[f64]) -> Vec<f64> {
-        let mut p = self.base.clone();
-        for (&i, &t) in self.free.iter().zip(x) {
-            p[i] = self.shader.params[i].from_unit(t);
-        }
-        self.shader.legal(&p)
+        self.shader.from_unit_box(&self.base, &self.free, x)
     }
 
     fn evaluate(&self, params: &[f64]) -> Eval {
@@ -512,7 +508,49 @@ impl CostFunction for Problem<'_> {
     }
 }
 
-/// Nelder–Mead from `start` over the continuous parameters.
+/// Nelder–Mead (argmin) on `problem` from the unit-box point `x0`: the
+/// first simplex steps `step` along each axis (inwards at the upper edge);
+/// it stops at `tolerance` or after `iters` iterations. Gives the problem
+/// back with the best point and the iterations run.
+pub(super) fn simplex<P>(
+    problem: P,
+    x0: &[f64],
+    step: f64,
+    tolerance: f64,
+    iters: u64,
+) -> Result<(P, Vec<f64>, u64)>
+where
+    P: CostFunction<Param = Vec<f64>, Output = f64>,
+{
+    let mut vertices = vec![x0.to_vec()];
+    for d in 0..x0.len() {
+        let mut v = x0.to_vec();
+        v[d] += if v[d] + step > 1.0 { -step } else { step };
+        vertices.push(v);
+    }
+    let solver = NelderMead::new(vertices)
+        .with_sd_tolerance(tolerance)
+        .map_err(|e| anyhow::anyhow!("simplex setup: {e}"))?;
+    let res = Executor::new(problem, solver)
+        .configure(|s| s.max_iters(iters))
+        .run()
+        .map_err(|e| anyhow::anyhow!("simplex search: {e}"))?;
+    let n = res.state().get_iter();
+    let best = res
+        .state()
+        .get_best_param()
+        .cloned()
+        .unwrap_or_else(|| x0.to_vec());
+    let problem = res
+        .problem
+        .problem
+        .context("the simplex lost its problem")?;
+    Ok((problem, best, n))
+}
+
+/// Nelder–Mead from `start` over the continuous parameters, then one
+/// restart with a small simplex round the best point: a collapsed simplex
+/// often stops short of the minimum.
 fn refine(
     shader: &'static Shader,
     start: &[f64],
@@ -523,72 +561,18 @@ fn refine(
     let problem = Problem {
         shader,
         base: shader.legal(start),
-        free: (0..shader.params.len())
-            .filter(|&i| shader.params[i].kind != Kind::Integer)
-            .collect(),
+        free: shader.continuous(),
         target,
         evals,
     };
     if problem.free.is_empty() {
         return Ok((problem.evaluate(&problem.base), 0));
     }
-    let x0: Vec<f64> = problem
-        .free
-        .iter()
-        .map(|&i| shader.params[i].to_unit(problem.base[i]))
-        .collect();
-    let mut simplex = vec![x0.clone()];
-    for d in 0..x0.len() {
-        let mut v = x0.clone();
-        v[d] += if v[d] + 0.1 > 1.0 { -0.1 } else { 0.1 };
-        simplex.push(v);
-    }
-    let free = problem.free.clone();
-    let base = problem.base.clone();
-    let solver = NelderMead::new(simplex)
-        .with_sd_tolerance(1e-6)
-        .map_err(|e| anyhow::anyhow!("simplex setup: {e}"))?;
-    let res = Executor::new(problem, solver)
-        .configure(|s| s.max_iters(max_iters))
-        .run()
-        .map_err(|e| anyhow::anyhow!("simplex search: {e}"))?;
-    let mut iters = res.state().get_iter();
-    let best = res
-        .state()
-        .get_best_param()
-        .cloned()
-        .unwrap_or_else(|| x0.clone());
-    let p = Problem {
-        shader,
-        base,
-        free,
-        target,
-        evals,
-    };
-    // One restart with a small simplex round the best point: a collapsed
-    // simplex often stops short of the minimum.
-    let mut simplex = vec![best.clone()];
-    for d in 0..best.len() {
-        let mut v = best.clone();
-        v[d] += if v[d] + 0.02 > 1.0 { -0.02 } else { 0.02 };
-        simplex.push(v);
-    }
-    let solver = NelderMead::new(simplex)
-        .with_sd_tolerance(1e-7)
-        .map_err(|e| anyhow::anyhow!("simplex setup: {e}"))?;
-    let res = Executor::new(p, solver)
-        .configure(|s| s.max_iters(max_iters.div_ceil(2)))
-        .run()
-        .map_err(|e| anyhow::anyhow!("simplex search: {e}"))?;
-    iters += res.state().get_iter();
-    let best = res.state().get_best_param().cloned().unwrap_or(best);
-    let p = res
-        .problem
-        .problem
-        .as_ref()
-        .context("the simplex lost its problem")?;
-    let params = p.params(&best);
-    Ok((p.evaluate(&params), iters))
+    let x0 = shader.to_unit_box(&problem.base, &problem.free);
+    let (problem, best, first) = simplex(problem, &x0, 0.1, 1e-6, max_iters)?;
+    let (problem, best, second) = simplex(problem, &best, 0.02, 1e-7, max_iters.div_ceil(2))?;
+    let params = problem.params(&best);
+    Ok((problem.evaluate(&params), first + second))
 }
 
 /// Values per parameter in a [`sweep`].
@@ -804,12 +788,23 @@ pub fn match_texture(
     settings.validate()?;
     let t = Instant::now();
     let target = Target::new(target, cat.size)?;
-    let starts = starting_points(cat, &target, settings)?;
+    match_prepared(&target, cat, settings, t)
+}
+
+/// [`match_texture`] of a target already described; `started` is when the
+/// match began (for the reported seconds).
+fn match_prepared(
+    target: &Target,
+    cat: &Catalogue,
+    settings: &MatchSettings,
+    started: Instant,
+) -> Result<MatchResult> {
+    let starts = starting_points(cat, target, settings)?;
     let evals = AtomicU64::new(0);
     // Screening: one simplex run from every start.
     let screened: Vec<(Eval, u64)> = starts
         .par_iter()
-        .map(|s| refine(s.shader, &s.params, settings.max_iters, &target, &evals))
+        .map(|s| refine(s.shader, &s.params, settings.max_iters, target, &evals))
         .collect::<Result<_>>()?;
     let mut order: Vec<usize> = (0..starts.len()).collect();
     order.sort_by(|&a, &b| {
@@ -828,7 +823,7 @@ pub fn match_texture(
                 starts[k].shader,
                 &screened[k].0.params,
                 settings.max_iters,
-                &target,
+                target,
                 &evals,
             )?;
             Ok((k, e, n + screened[k].1))
@@ -873,7 +868,7 @@ pub fn match_texture(
         objective: e.objective,
         iterations,
         evaluations: evals.load(Ordering::Relaxed),
-        seconds: t.elapsed().as_secs_f64(),
+        seconds: started.elapsed().as_secs_f64(),
         candidates,
     })
 }
@@ -1040,13 +1035,14 @@ pub fn recovery_trials(
         shaders: Some(vec![shader.name.to_string()]),
         ..settings.clone()
     };
+    settings.validate()?;
     (0..draws as u64)
         .map(|k| {
             let truth = draw(shader, seed + k);
-            let target = truth.render(cat.size, cat.size);
-            let found = match_texture(&target, cat, &settings)?;
-            let truth_objective =
-                evaluate(shader, &truth.params, &Target::new(&target, cat.size)?).objective;
+            let started = Instant::now();
+            let target = Target::new(&truth.render(cat.size, cat.size), cat.size)?;
+            let found = match_prepared(&target, cat, &settings, started)?;
+            let truth_objective = evaluate(shader, &truth.params, &target).objective;
             Ok(Trial {
                 truth_objective,
                 recovered: recovered(&truth, &found.pattern, tolerance),

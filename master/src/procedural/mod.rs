@@ -24,3 +24,15 @@ pub mod transform;
 pub use catalogue::{BuildSettings, Catalogue};
 pub use matching::{match_texture, MatchResult, MatchSettings, Pattern};
 pub use shaders::{Kind, ParamSpec, Shader, LIBRARY};
+
+/// A pool of one thread and one of two, for tests that a result does not
+/// depend on the thread count.
+#[cfg(test)]
+pub(crate) fn one_and_two_threads() -> [rayon::ThreadPool; 2] {
+    [1, 2].map(|n| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .expect("a thread pool")
+    })
+}

@@ -121,6 +121,28 @@ impl Shader {
             .collect()
     }
 
+    /// The indices of the parameters a simplex moves: all but whole numbers.
+    pub fn continuous(&self) -> Vec<usize> {
+        (0..self.params.len())
+            .filter(|&i| self.params[i].kind != Kind::Integer)
+            .collect()
+    }
+
+    /// `base` with its parameters `free` set from the unit-box point `x`,
+    /// made legal.
+    pub fn from_unit_box(&self, base: &[f64], free: &[usize], x: &[f64]) -> Vec<f64> {
+        let mut p = base.to_vec();
+        for (&i, &t) in free.iter().zip(x) {
+            p[i] = self.params[i].from_unit(t);
+        }
+        self.legal(&p)
+    }
+
+    /// The unit-box point of `p`'s parameters `free`.
+    pub fn to_unit_box(&self, p: &[f64], free: &[usize]) -> Vec<f64> {
+        free.iter().map(|&i| self.params[i].to_unit(p[i])).collect()
+    }
+
     /// The largest per-parameter distance of `a` and `b`, as a fraction of
     /// each range (integers count as far as they differ).
     pub fn distance(&self, a: &[f64], b: &[f64]) -> f64 {
@@ -590,14 +612,7 @@ mod tests {
     fn rendering_does_not_depend_on_threads() {
         let s = by_name("cells").unwrap();
         let p = [5.0, 0.7, 0.4];
-        let one = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
-        let two = rayon::ThreadPoolBuilder::new()
-            .num_threads(2)
-            .build()
-            .unwrap();
+        let [one, two] = crate::procedural::one_and_two_threads();
         let a = one.install(|| s.render_field(&p, 40, 33, 40));
         let b = two.install(|| s.render_field(&p, 40, 33, 40));
         assert_eq!(a, b);

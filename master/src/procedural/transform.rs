@@ -18,14 +18,13 @@
 //!   distance, parameters and colours interpolated between path points.
 
 use anyhow::{ensure, Context, Result};
-use argmin::core::{CostFunction, Executor, State};
-use argmin::solver::neldermead::NelderMead;
+use argmin::core::CostFunction;
 use pathfinding::prelude::dijkstra;
 use rayon::prelude::*;
 
 use super::catalogue::{describe, unit_distance, Catalogue};
 use super::descriptor::Structure;
-use super::matching::{ColourTarget, Pattern};
+use super::matching::{simplex, ColourTarget, Pattern};
 use super::shaders::{Kind, Shader};
 use crate::compare::Descriptors;
 
@@ -275,11 +274,7 @@ struct Towards<'a> {
 
 impl Towards<'_> {
     fn params(&self, x: &[f64]) -> Vec<f64> {
-        let mut p = self.base.clone();
-        for (&i, &t) in self.free.iter().zip(x) {
-            p[i] = self.shader.params[i].from_unit(t);
-        }
-        self.shader.legal(&p)
+        self.shader.from_unit_box(&self.base, &self.free, x)
     }
 }
 
@@ -294,46 +289,22 @@ impl CostFunction for Towards<'_> {
 
 /// `params` of `s` moved by Nelder–Mead towards the texture `other`.
 fn approach(s: &'static Shader, params: &[f64], other: &Structure, size: usize) -> Vec<f64> {
-    let free: Vec<usize> = (0..s.params.len())
-        .filter(|&i| s.params[i].kind != Kind::Integer)
-        .collect();
+    let free = s.continuous();
     if free.is_empty() {
         return params.to_vec();
     }
-    let x0: Vec<f64> = free
-        .iter()
-        .map(|&i| s.params[i].to_unit(params[i]))
-        .collect();
-    let mut simplex = vec![x0.clone()];
-    for d in 0..x0.len() {
-        let mut v = x0.clone();
-        v[d] += if v[d] + 0.05 > 1.0 { -0.05 } else { 0.05 };
-        simplex.push(v);
-    }
+    let x0 = s.to_unit_box(params, &free);
     let problem = Towards {
-        shader: s,
-        base: params.to_vec(),
-        free: free.clone(),
-        other,
-        size,
-    };
-    let Ok(solver) = NelderMead::new(simplex).with_sd_tolerance(1e-6) else {
-        return params.to_vec();
-    };
-    let best = Executor::new(problem, solver)
-        .configure(|st| st.max_iters(30))
-        .run()
-        .ok()
-        .and_then(|r| r.state().get_best_param().cloned())
-        .unwrap_or(x0);
-    Towards {
         shader: s,
         base: params.to_vec(),
         free,
         other,
         size,
+    };
+    match simplex(problem, &x0, 0.05, 1e-6, 30) {
+        Ok((problem, best, _)) => problem.params(&best),
+        Err(_) => params.to_vec(),
     }
-    .params(&best)
 }
 
 /// A sample whose contrast is under this share of its shader's median is
