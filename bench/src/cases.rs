@@ -3,8 +3,10 @@
 //! options of a run and the thread pool.
 
 use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, ensure, Context, Result};
 use clap::Args;
 use texsyn::imaging::ColorImage;
 use texsyn::{Config, Mode, SynthMethod};
@@ -165,4 +167,89 @@ pub fn sibling_binary(name: &str, given: Option<&Path>, flag: &str) -> Result<Pa
         p.display()
     );
     Ok(p)
+}
+
+/// Wall seconds and peak resident bytes of a child process (`wait4`), which
+/// must exit with 0. A child's peak starts at its parent's when it is forked,
+/// so callers go through [`measured`], whose helper process is small.
+fn wait_measured(cmd: &mut Command) -> Result<(f64, u64)> {
+    let t = Instant::now();
+    let child = cmd
+        .spawn()
+        .with_context(|| format!("cannot start {:?}", cmd.get_program()))?;
+    let pid = child.id() as libc::pid_t;
+    let mut status = 0;
+    // SAFETY: an all-zero rusage is a valid value of the plain C struct.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: `pid` is our own child, not yet waited for; both pointers are
+    // to live locals.
+    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+    let secs = t.elapsed().as_secs_f64();
+    ensure!(
+        r == pid,
+        "wait4 failed: {}",
+        std::io::Error::last_os_error()
+    );
+    ensure!(
+        libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0,
+        "{:?} failed (status {status})",
+        cmd.get_program()
+    );
+    Ok((secs, usage.ru_maxrss as u64 * 1024))
+}
+
+/// A command to be timed: `program` run by `texsyn-bench measure-child`, a
+/// fresh small process, so that the peak memory it reports is the program's
+/// own and not this process's at the fork. Add arguments and stdio to `cmd`,
+/// then [`Measured::run`].
+pub struct Measured {
+    pub cmd: Command,
+    result: tempfile::TempPath,
+}
+
+pub fn measured(program: &Path) -> Result<Measured> {
+    let result = tempfile::NamedTempFile::new()?.into_temp_path();
+    let mut cmd = Command::new(std::env::current_exe()?);
+    cmd.arg("measure-child")
+        .arg("--result")
+        .arg(&result)
+        .arg("--")
+        .arg(program);
+    Ok(Measured { cmd, result })
+}
+
+impl Measured {
+    /// Runs the program: its wall seconds and peak resident bytes.
+    pub fn run(mut self) -> Result<(f64, u64)> {
+        let status = self
+            .cmd
+            .status()
+            .context("cannot start texsyn-bench measure-child")?;
+        ensure!(status.success(), "the measured command failed ({status})");
+        let text = std::fs::read_to_string(&self.result)?;
+        let mut it = text.split_whitespace().map(str::parse::<f64>);
+        match (it.next(), it.next()) {
+            (Some(Ok(secs)), Some(Ok(bytes))) => Ok((secs, bytes as u64)),
+            _ => bail!("measure-child wrote no result"),
+        }
+    }
+}
+
+/// `texsyn-bench measure-child`: runs a command and writes its wall seconds
+/// and peak resident bytes into a file.
+#[derive(clap::Args, Debug)]
+pub struct MeasureChildArgs {
+    #[arg(long)]
+    pub result: PathBuf,
+    /// The program and its arguments.
+    #[arg(trailing_var_arg = true, allow_hyphen_values = true, required = true)]
+    pub command: Vec<std::ffi::OsString>,
+}
+
+pub fn measure_child(a: &MeasureChildArgs) -> Result<()> {
+    let mut cmd = Command::new(&a.command[0]);
+    cmd.args(&a.command[1..]);
+    let (secs, peak) = wait_measured(&mut cmd)?;
+    std::fs::write(&a.result, format!("{secs} {peak}"))?;
+    Ok(())
 }

@@ -15,6 +15,9 @@ mod lbg;
 mod morph;
 mod paper;
 mod procedural;
+mod quality;
+mod scale;
+mod sheet;
 mod solid;
 
 const EXAMPLES: &str = "Examples:
@@ -28,6 +31,8 @@ const EXAMPLES: &str = "Examples:
   texsyn-bench morph --reps 3 --out /tmp/morph
   texsyn-bench solid --sizes 64,128,256 --neighbourhoods half,7
   texsyn-bench faults --runs 50 --seed 1 --json /tmp/faults.json
+  texsyn-bench quality --max-side 256 -o /tmp/quality
+  texsyn-bench scale ../shared/textures/mossy_rock_color_1024.png --threads 2,4,8,16 --cluster-size 2048x2048 --workers 4x4,8x2
   texsyn-bench match --draws 10 --photos ../shared/textures/brick_color_96.png --out /tmp/match
   /usr/bin/time -v texsyn synth /tmp/rock_8192.png -o /tmp/out.png --size 512x512 [--local-workers 2]
 
@@ -99,6 +104,23 @@ enum Command {
         after_help = "Example: texsyn-bench match --draws 10 --photos ../shared/textures/pink_marble_color_128.png --out /tmp/match"
     )]
     Match(procedural::MatchArgs),
+    /// Every method over a list of textures at 2× the sample's side: a JSON
+    /// table of `texsyn compare`'s figures with time and peak memory, and a
+    /// contact sheet.
+    #[command(
+        after_help = "Example: texsyn-bench quality assets/textures --methods block,somol -o /tmp/quality"
+    )]
+    Quality(quality::QualityArgs),
+    /// Exact synthesis over thread counts and local workers: time, speed-up,
+    /// efficiency, identical output, and where the finest level's time went.
+    #[command(
+        after_help = "Example: texsyn-bench scale ../shared/textures/mossy_rock_color_1024.png --threads 1,2 --size 768x768"
+    )]
+    Scale(scale::ScaleArgs),
+    /// Runs a command and writes its wall time and peak memory (the helper of
+    /// `quality` and `solid`).
+    #[command(hide = true)]
+    MeasureChild(cases::MeasureChildArgs),
     /// Spins on one core (the neighbour of a slowed worker in `faults`).
     #[command(hide = true)]
     Hog(faults::HogArgs),
@@ -137,6 +159,9 @@ fn main() -> ExitCode {
         Command::Faults(a) => faults::run(&a),
         Command::Hog(a) => faults::hog(&a),
         Command::Match(a) => procedural::run(&a),
+        Command::Quality(a) => quality::run(&a),
+        Command::MeasureChild(a) => cases::measure_child(&a),
+        Command::Scale(a) => scale::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

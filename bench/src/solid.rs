@@ -6,10 +6,8 @@
 //! the last solid against its exemplar.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
-use std::time::Instant;
 
-use anyhow::{ensure, Context, Result};
+use anyhow::{ensure, Result};
 use clap::Args;
 use texsyn::compare;
 use texsyn::imaging::volume::{Axis, Volume};
@@ -41,30 +39,6 @@ pub struct SolidArgs {
     pub texsyn: Option<PathBuf>,
 }
 
-/// Wall seconds and peak resident bytes of a child process.
-fn measure(cmd: &mut Command) -> Result<(f64, u64)> {
-    let t = Instant::now();
-    let child = cmd.spawn().context("cannot start texsyn")?;
-    let pid = child.id() as libc::pid_t;
-    let mut status = 0;
-    // SAFETY: an all-zero rusage is a valid value of the plain C struct.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: `pid` is our own child, not yet waited for; both pointers are
-    // to live locals.
-    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
-    let secs = t.elapsed().as_secs_f64();
-    ensure!(
-        r == pid,
-        "wait4 failed: {}",
-        std::io::Error::last_os_error()
-    );
-    ensure!(
-        libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0,
-        "texsyn solid failed (status {status})"
-    );
-    Ok((secs, usage.ru_maxrss as u64 * 1024))
-}
-
 pub fn run(a: &SolidArgs) -> Result<()> {
     let exemplar = {
         let p = PathBuf::from(&a.exemplar);
@@ -89,7 +63,8 @@ pub fn run(a: &SolidArgs) -> Result<()> {
     for &n in &a.sizes {
         for nb in &a.neighbourhoods {
             let dir = out.join(format!("solid_{n}_{nb}"));
-            let mut cmd = Command::new(&texsyn);
+            let mut m = crate::cases::measured(&texsyn)?;
+            let cmd = &mut m.cmd;
             cmd.arg("solid")
                 .arg("--view")
                 .arg(format!("xyz={}", exemplar.display()))
@@ -99,7 +74,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
             if let Some(t) = a.threads {
                 cmd.args(["--threads", &t.to_string()]);
             }
-            let (secs, peak) = measure(&mut cmd)?;
+            let (secs, peak) = m.run()?;
             println!(
                 "| {n}³ | {nb} | {secs:.1} s | {:.0} MiB |",
                 peak as f64 / (1u64 << 20) as f64

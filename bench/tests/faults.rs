@@ -24,8 +24,12 @@ fn sibling_binaries() -> PathBuf {
         let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
         let mut c = Command::new(cargo);
         c.args(["build", "-p", "texsyn", "-p", "texsyn-worker"]);
-        if dir.file_name().is_some_and(|n| n == "release") {
-            c.arg("--release");
+        // target/<dir>: the profile that built this test (debug is `dev`).
+        match dir.file_name().and_then(|n| n.to_str()) {
+            Some("debug") | None => {}
+            Some(profile) => {
+                c.args(["--profile", profile]);
+            }
         }
         assert!(c.status().unwrap().success(), "cargo build of the binaries");
     }

@@ -1,7 +1,7 @@
 //! The `texsyn` binary on good and bad input: bad input gets one clear error
 //! line and a non-zero exit, never a panic or a partial output file.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -4,7 +4,7 @@
 //! another source copies only from it; `fill --tileable` tiles; alpha
 //! survives and can mark the holes.
 
-mod common;
+use crate::common;
 
 use std::collections::HashSet;
 use std::path::Path;

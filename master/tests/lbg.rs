@@ -3,7 +3,7 @@
 //! deterministic across thread counts, the run report records each level's
 //! codebook, and bad LBG parameters are clear errors (library and CLI).
 
-mod common;
+use crate::common;
 
 use anyhow::Result;
 use common::{assets, s, texsyn};

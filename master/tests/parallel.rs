@@ -4,7 +4,7 @@
 //! exactly (of both methods), threads do not change a byte, and bad input is
 //! refused with the fix named.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -7,7 +7,7 @@
 //! few draws per shader) to stay quick; the full 10 draws per shader at the
 //! default catalogue are `texsyn-bench match`.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -4,7 +4,7 @@
 //! faces and the centre slices, a ramp morphs one material into the other,
 //! replay reproduces the solid, and bad input is refused with the fix named.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

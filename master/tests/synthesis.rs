@@ -2,7 +2,7 @@
 //! determinism across threads and batch sizes, fill never touching known
 //! pixels, copy-map consistency and seamless tiling.
 
-mod common;
+use crate::common;
 
 use common::{run, seam, texture};
 use texsyn::block::Silent;

@@ -2,7 +2,7 @@
 //! against the optimum, stitches, tile borders, seamless grids, and the
 //! similarity measures' defining properties.
 
-mod common;
+use crate::common;
 
 use std::time::{Duration, Instant};
 

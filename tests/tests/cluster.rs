@@ -4,7 +4,7 @@
 //! stopped mid-level, and when every worker is gone; bad calls are rejected
 //! with the right status and the worker keeps serving.
 
-mod harness;
+use crate::harness;
 
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};

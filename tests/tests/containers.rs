@@ -14,7 +14,7 @@
 //! passes, except under `CI=true`, where `.ci/run` installs and starts them,
 //! so it fails instead.
 
-mod harness;
+use crate::harness;
 
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};

@@ -15,7 +15,7 @@ fn binary(name: &str) -> PathBuf {
     let p = dir.join(name);
     assert!(
         p.exists(),
-        "{} is not built; run `cargo test --workspace --release`",
+        "{} is not built; run `cargo test --workspace --profile ci`",
         p.display()
     );
     p

@@ -6,7 +6,7 @@
 //! worker answers each call with a result or a status, keeps serving, and its
 //! reservations and its peak RSS stay within the budget.
 
-mod harness;
+use crate::harness;
 
 use std::ffi::OsString;
 use std::net::Ipv4Addr;

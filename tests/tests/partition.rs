@@ -13,7 +13,7 @@
 //! the test prints `SKIP: <reason>` and passes, except with `CI=true`, where
 //! it fails: CI runs as root and installs nftables (`.ci/run`).
 
-mod harness;
+use crate::harness;
 
 use std::path::Path;
 use std::process::{Command, Stdio};

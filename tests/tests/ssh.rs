@@ -4,7 +4,7 @@
 //! and are gone after the run — also after the master is killed with SIGKILL.
 //! Where sshd cannot be started the sshd tests say so and are skipped.
 
-mod harness;
+use crate::harness;
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};

@@ -6,7 +6,7 @@
 //! and `health` speak TLS. Skipped with a message where openssl is missing
 //! (a failure when CI=true).
 
-mod harness;
+use crate::harness;
 
 use std::path::Path;
 use std::process::{Command, Output};

@@ -31,11 +31,22 @@ pub(super) struct LevelContext<'a> {
     pub levels: usize,
 }
 
-/// Search figures of one level.
+/// Search figures of one level, and where its time went.
+#[derive(Default)]
 pub(super) struct LevelStats {
     pub queries: u64,
     pub batches: u64,
+    /// Wall time in the backend's search.
     pub search_seconds: f64,
+    /// Thread time of this process's engine inside those searches (0 when the
+    /// search ran elsewhere).
+    pub search_busy_seconds: f64,
+    /// Picking each batch's blocks from the queue.
+    pub choose_seconds: f64,
+    /// Building the batches' query vectors and candidates.
+    pub query_seconds: f64,
+    /// Copying the answers' blocks, stitching and re-keying the queue.
+    pub copy_seconds: f64,
 }
 
 /// The canvas as B×B blocks in scan-line order; the last column and row of
@@ -98,11 +109,7 @@ pub(super) fn fill_level(
     };
     let dims = ctx.layout.dims();
     let (mut values, mut mask) = (vec![0u8; dims], vec![0u8; dims]);
-    let mut stats = LevelStats {
-        queries: 0,
-        batches: 0,
-        search_seconds: 0.0,
-    };
+    let mut stats = LevelStats::default();
     let mut batcher = Batcher::new(canvas, ctx.cfg.batch, n);
     let rekey_radius = ((n / 2 + b / 2) / b + 1) as isize;
     // Pixels known before the search (placed sample, kept photo, seed) are
@@ -111,7 +118,10 @@ pub(super) fn fill_level(
         .then(|| (canvas.defined.clone(), stitch_band(b, n)))
         .filter(|(_, o)| *o > 0);
     while !queue.is_empty() {
+        let t = Instant::now();
         batcher.choose(&mut queue, &grid);
+        stats.choose_seconds += t.elapsed().as_secs_f64();
+        let t = Instant::now();
         let mut batch = QueryBatch::new(ctx.layout);
         for &(cx, cy) in &batcher.centres {
             query(
@@ -130,9 +140,12 @@ pub(super) fn fill_level(
             batch.set_candidates(batch.len() - 1, cands);
         }
         let chosen = &batcher.chosen;
-        let t = Instant::now();
+        stats.query_seconds += t.elapsed().as_secs_f64();
+        let (t, busy) = (Instant::now(), texsyn_engine::busy_nanos());
         let hits = backend.search(&batch)?;
         stats.search_seconds += t.elapsed().as_secs_f64();
+        stats.search_busy_seconds += (texsyn_engine::busy_nanos() - busy) as f64 * 1e-9;
+        let t = Instant::now();
         ensure!(
             hits.len() == chosen.len(),
             "search returned {} answers for {} queries",
@@ -158,6 +171,7 @@ pub(super) fn fill_level(
         if !ctx.scanline {
             rekey(&mut queue, canvas, &grid, chosen, n, rekey_radius);
         }
+        stats.copy_seconds += t.elapsed().as_secs_f64();
         progress.advance(chosen.len() as u64);
     }
     progress.level_end(ctx.level);

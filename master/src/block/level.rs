@@ -101,6 +101,17 @@ pub(super) fn run_level(
     let stats = fill_level(&ctx, &mut canvas, backend, progress)?;
     let prune = backend.level_prune();
     backend.end_level();
+    let threads = rayon::current_num_threads();
+    let busy = (stats.search_busy_seconds > 0.0).then_some(stats.search_busy_seconds);
+    tracing::info!(
+        level = l,
+        search = stats.search_seconds,
+        idle = busy.map(|b| 1.0 - b / (threads as f64 * stats.search_seconds).max(1e-12)),
+        choose = stats.choose_seconds,
+        queries = stats.query_seconds,
+        copy = stats.copy_seconds,
+        "level time"
+    );
     let report = LevelReport {
         level: l,
         canvas: [lw, lh],
@@ -112,6 +123,19 @@ pub(super) fn run_level(
         build_seconds,
         search_seconds: stats.search_seconds,
         total_seconds: level_started.elapsed().as_secs_f64(),
+        choose_seconds: stats.choose_seconds,
+        query_seconds: stats.query_seconds,
+        copy_seconds: stats.copy_seconds,
+        threads,
+        search_busy_seconds: busy,
+        search_idle_share: busy.map(|b| {
+            let offered = threads as f64 * stats.search_seconds;
+            if offered > 0.0 {
+                (1.0 - b / offered).max(0.0)
+            } else {
+                0.0
+            }
+        }),
         prune,
         pairs_skipped: prune.map(|p| p.pairs_skipped()),
         components_skipped: prune.map(|p| p.components_skipped()),

@@ -61,6 +61,20 @@ pub struct LevelReport {
     pub build_seconds: f64,
     pub search_seconds: f64,
     pub total_seconds: f64,
+    /// Where the level's time went besides the search: picking each batch
+    /// from the queue, building its queries, copying the answers (with
+    /// stitching and re-keying).
+    pub choose_seconds: f64,
+    pub query_seconds: f64,
+    pub copy_seconds: f64,
+    /// Threads of this process's search pool.
+    pub threads: usize,
+    /// Thread time in this process's engine during the searches, and the share
+    /// of `threads × search_seconds` it leaves idle (waiting for the slowest
+    /// part, or outside the parallel section). `None` when the search ran on
+    /// workers only.
+    pub search_busy_seconds: Option<f64>,
+    pub search_idle_share: Option<f64>,
     /// What pruning saved (ARCHITECTURE §3.5), where the backend counts it:
     /// pairs scored and abandoned, chunks of components computed.
     pub prune: Option<texsyn_engine::PruneStats>,

@@ -16,6 +16,7 @@ use crate::search::{LocalSearch, Plan, PlannedSearch};
 pub use cluster::{run_status, ClusterArgs, ClusterSetup, StatusArgs};
 
 mod cluster;
+mod compare;
 mod parallel;
 mod paths;
 mod solid;
@@ -23,8 +24,9 @@ mod tiles;
 pub use parallel::{MorphArgs, ParallelArgs, ReplayArgs};
 pub use solid::SolidArgs;
 mod procedural;
+pub use compare::CompareArgs;
 pub use procedural::{MatchArgs, MatchCommand};
-pub use tiles::{read_index, CompareArgs, TilesCommand};
+pub use tiles::{read_index, TilesCommand};
 
 const EXAMPLES: &str = "Examples:
   texsyn extend sample.png -o out.png --size 1024x1024 --block 5 --neighbourhood 11 --levels 4 --tileable --seed 7
@@ -85,8 +87,10 @@ pub enum Command {
     /// Copy other maps of a material (height, normal...) through a coordinate or copy map.
     #[command(after_help = "Example: texsyn replay --coords c.png height.png -o replayed/")]
     Replay(ReplayArgs),
-    /// Compare two textures: JSON with S_F, S_L, colour, patch fidelity and seam scores.
-    #[command(after_help = "Example: texsyn compare sample.png out.png")]
+    /// Compare a texture with its sample (S_F, S_L, colour, patch fidelity, seams, copy and repetition), or measure a tile set.
+    #[command(
+        after_help = "Examples:\n  texsyn compare sample.png out.png\n  texsyn compare sample.png grid.png --tile 128x128 --wrap\n  texsyn compare set/"
+    )]
     Compare(CompareArgs),
     /// Find the procedural shader and parameters that reproduce a texture, or transform one texture into another (Bourque–Dudek).
     #[command(
@@ -746,7 +750,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Morph(a) => parallel::run_morph(&a),
         Command::Replay(a) => parallel::run_replay(&a),
         Command::Solid(a) => solid::run(&a),
-        Command::Compare(a) => tiles::run_compare(&a),
+        Command::Compare(a) => compare::run(&a),
         Command::Match(a) => procedural::run(&a),
     }
 }

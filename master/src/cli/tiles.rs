@@ -1,4 +1,4 @@
-//! `texsyn tiles make|assemble` and `texsyn compare`.
+//! `texsyn tiles make|assemble`.
 
 use std::path::{Path, PathBuf};
 
@@ -7,7 +7,6 @@ use clap::{Args, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
-use crate::compare;
 use crate::imaging::{self, ColorImage};
 use crate::tiles::{self, PathSearch, TileSetSettings};
 
@@ -111,18 +110,6 @@ pub struct AssembleArgs {
     pub output: PathBuf,
 }
 
-#[derive(Args, Debug)]
-pub struct CompareArgs {
-    /// The reference texture.
-    pub a: PathBuf,
-    /// The texture compared with it.
-    pub b: PathBuf,
-    /// B is a grid of tiles of this size (WxH): its seam score is taken at
-    /// the tile joints (default: at the wrap-around only).
-    #[arg(long)]
-    pub tile: Option<String>,
-}
-
 #[derive(Serialize)]
 struct TileSetFile<'a> {
     method: &'static str,
@@ -145,7 +132,7 @@ struct TileEntry<'a> {
     derived: Option<&'a tiles::tileset::DerivedTile>,
 }
 
-fn parse_pair(s: &str, what: &str) -> Result<(usize, usize)> {
+pub(super) fn parse_pair(s: &str, what: &str) -> Result<(usize, usize)> {
     let (a, b) = s
         .split_once(['x', 'X'])
         .with_context(|| format!("{what} '{s}' is not WxH, e.g. 4x4"))?;
@@ -564,17 +551,4 @@ fn assemble(a: &AssembleArgs) -> Result<()> {
     }
     let img = tiles::assemble(&set, &index)?;
     imaging::save_color(&a.output, &img)
-}
-
-pub fn run_compare(a: &CompareArgs) -> Result<()> {
-    let (ia, ib) = (imaging::load_color(&a.a)?, imaging::load_color(&a.b)?);
-    let mut scores = compare::compare(&ia, &ib)?;
-    if let Some(t) = &a.tile {
-        let (tw, th) = parse_pair(t, "--tile")?;
-        let cols: Vec<usize> = (0..ib.width).step_by(tw).collect();
-        let rows: Vec<usize> = (0..ib.height).step_by(th).collect();
-        scores.seam = compare::seam_score(&ib, &cols, &rows);
-    }
-    println!("{}", serde_json::to_string_pretty(&scores)?);
-    Ok(())
 }

@@ -34,12 +34,15 @@ pub fn binary(name: &str) -> PathBuf {
     let p = target_dir().join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
     if !p.is_file() {
         BUILT.get_or_init(|| {
-            let release = target_dir().file_name().is_some_and(|n| n == "release");
             let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
             let mut cmd = std::process::Command::new(cargo);
             cmd.args(["build", "-p", "texsyn", "-p", "texsyn-worker"]);
-            if release {
-                cmd.arg("--release");
+            // target/<dir>: the profile that built this test (debug is `dev`).
+            match target_dir().file_name().and_then(|n| n.to_str()) {
+                Some("debug") | None => {}
+                Some(profile) => {
+                    cmd.args(["--profile", profile]);
+                }
             }
             let status = cmd.status().expect("run cargo build");
             assert!(status.success(), "cargo build of the binaries failed");

@@ -31,5 +31,5 @@ pub use level::{OwnedLevel, Scorer};
 pub use merge::{check_part, merge_answers, merge_best, merge_topk, with_bounds, Hit};
 pub use plane::{OwnedPlane, Plane, Sample};
 pub use positions::Positions;
-pub use search::Engine;
+pub use search::{busy_nanos, Engine};
 pub use space::{Storage, VectorSpace};

@@ -14,6 +14,8 @@
 
 use std::borrow::Cow;
 use std::ops::Range;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
 
 use rayon::prelude::*;
 
@@ -23,6 +25,33 @@ use crate::kernel::{distance, Kernel, Params, PruneStats, Scan, Sink};
 use crate::merge::{merge_best, merge_topk, Hit};
 use crate::space::VectorSpace;
 use crate::window::Sweep;
+
+/// Thread time spent in search tasks by this process, in nanoseconds.
+static BUSY_NANOS: AtomicU64 = AtomicU64::new(0);
+
+/// Thread time this process has spent in search tasks so far (all searches,
+/// all threads), in nanoseconds. The difference over a search, set against
+/// its wall time × threads, is how long the threads sat idle: waiting for the
+/// slowest part, or outside the parallel section.
+pub fn busy_nanos() -> u64 {
+    BUSY_NANOS.load(Ordering::Relaxed)
+}
+
+/// Adds the time from its start to its drop to [`busy_nanos`].
+pub(crate) struct BusyTimer(Instant);
+
+impl BusyTimer {
+    pub(crate) fn start() -> Self {
+        Self(Instant::now())
+    }
+}
+
+impl Drop for BusyTimer {
+    fn drop(&mut self) {
+        let ns = u64::try_from(self.0.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        BUSY_NANOS.fetch_add(ns, Ordering::Relaxed);
+    }
+}
 
 /// Per query the best (distance, index) so far, started from the query's
 /// bound. Comparisons are on the pair, so a vector that ties the bound with a
@@ -303,6 +332,7 @@ impl Engine {
                 .chunks(&range)
                 .into_par_iter()
                 .map(|r| {
+                    let _busy = BusyTimer::start();
                     let mut sink = BestSink::from(&sub_start, self.prune);
                     self.scan(space, r, &sub, params, &mut sink);
                     let hits = sink
@@ -406,6 +436,7 @@ impl Engine {
             .chunks(&range)
             .into_par_iter()
             .map(|r| {
+                let _busy = BusyTimer::start();
                 let mut sink = TopKSink {
                     k,
                     lists: vec![Vec::with_capacity(k + 1); nq],

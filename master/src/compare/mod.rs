@@ -9,6 +9,17 @@
 //!   found by exact search on the project's engine.
 //! - A seam score: the step across given columns and rows (tile joints, the
 //!   wrap of a tileable image) against the steps inside.
+//! - Copy and repetition ([`repetition`]): the share of B copied verbatim from
+//!   A at one offset, the share of B repeated verbatim inside B, and for tile
+//!   grids the pixels the tiles share. The four above reward a copy of the
+//!   sample; these are what catch it.
+
+pub mod repetition;
+pub mod set;
+#[cfg(test)]
+mod tests;
+
+pub use repetition::{copy_share, repeat_share, tile_overlap, CopyShare};
 
 use anyhow::{ensure, Result};
 use rustfft::{num_complex::Complex, FftPlanner};
@@ -34,18 +45,115 @@ pub struct Scores {
     /// (every 3rd position, at most 4096 patches) and its nearest patch of A.
     pub patch_fidelity: f64,
     /// Seam score of B as a tileable image: its wrap-around steps against its
-    /// interior steps (below 1: no worse than inside).
+    /// interior steps (below 1: no worse than inside); with a tile grid, at the
+    /// grid's joints.
     pub seam: SeamScore,
+    /// The share of B's 8×8 patches found verbatim in A at the single most
+    /// common offset (modulo A's size): near 1 for a copy or tiling of A.
+    pub copy_share: f64,
+    /// That offset: B(x, y) = A((x + ox) mod A.width, (y + oy) mod A.height).
+    pub copy_offset: [usize; 2],
+    /// The share of B's 8×8 patches that occur verbatim again in B at least
+    /// 16 px away.
+    pub repeat_share: f64,
+    /// With a tile grid: its tiles, how many distinct images they are and the
+    /// pixels the distinct images share.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tiles: Option<GridScores>,
 }
 
-/// Compares B with A on every measure.
+/// The tile measures of a grid image.
+#[derive(Clone, Debug, Serialize)]
+pub struct GridScores {
+    pub tile_width: usize,
+    pub tile_height: usize,
+    /// Whole cells in the grid.
+    pub cells: usize,
+    /// Distinct tile images among the cells.
+    pub distinct_tiles: usize,
+    /// Mean over pairs of distinct tile images of the share of equal pixels
+    /// (1 when every cell holds one image).
+    pub tile_overlap: f64,
+    /// Whether the outer edge counts as a joint (a grid that wraps).
+    pub wrap: bool,
+}
+
+/// A grid of `tile_width`×`tile_height` tiles; `wrap` when its outer edge is a
+/// joint too (the grid tiles the plane).
+#[derive(Clone, Copy, Debug)]
+pub struct Grid {
+    pub tile_width: usize,
+    pub tile_height: usize,
+    pub wrap: bool,
+}
+
+/// Compares B with A on every measure; B is taken as tileable (its seam is
+/// the wrap-around).
 pub fn compare(a: &ColorImage, b: &ColorImage) -> Result<Scores> {
+    compare_with(a, b, None)
+}
+
+/// Compares B with A on every measure; with a `grid`, B is a grid of tiles
+/// whose seam is taken at its joints and whose tiles are compared.
+pub fn compare_with(a: &ColorImage, b: &ColorImage, grid: Option<Grid>) -> Result<Scores> {
+    let timed = |what: &str, t: std::time::Instant| {
+        tracing::info!(seconds = t.elapsed().as_secs_f64(), "compare: {what}");
+    };
+    let t = std::time::Instant::now();
+    let copy = copy_share(a, b);
+    let repeat = repeat_share(b);
+    timed("copy_share and repeat_share", t);
+    let (seam, tiles) = match grid {
+        None => (seam_score(b, &[0], &[0]), None),
+        Some(g) => {
+            ensure!(
+                g.tile_width >= 1
+                    && g.tile_height >= 1
+                    && g.tile_width <= b.width
+                    && g.tile_height <= b.height,
+                "the tile size {}x{} does not fit the {}x{} image: give --tile WxH of one tile",
+                g.tile_width,
+                g.tile_height,
+                b.width,
+                b.height
+            );
+            let cells = repetition::grid_cells(b, g.tile_width, g.tile_height);
+            let first = repetition::distinct_tiles(&cells);
+            let distinct = first.iter().enumerate().filter(|&(i, &f)| i == f).count();
+            let overlap = tile_overlap(&cells).unwrap_or(0.0);
+            (
+                grid_seam(b, g),
+                Some(GridScores {
+                    tile_width: g.tile_width,
+                    tile_height: g.tile_height,
+                    cells: cells.len(),
+                    distinct_tiles: distinct,
+                    tile_overlap: overlap,
+                    wrap: g.wrap,
+                }),
+            )
+        }
+    };
+    let t = std::time::Instant::now();
+    let (s_f, s_l, colour) = (
+        spectrum_similarity(a, b)?,
+        laplacian_distance(a, b)?,
+        colour_distance(a, b),
+    );
+    timed("S_F, S_L and colour", t);
+    let t = std::time::Instant::now();
+    let patch_fidelity = patch_fidelity(a, b)?;
+    timed("patch fidelity", t);
     Ok(Scores {
-        s_f: spectrum_similarity(a, b)?,
-        s_l: laplacian_distance(a, b)?,
-        colour: colour_distance(a, b),
-        patch_fidelity: patch_fidelity(a, b)?,
-        seam: seam_score(b, &[0], &[0]),
+        s_f,
+        s_l,
+        colour,
+        patch_fidelity,
+        seam,
+        copy_share: copy.share,
+        copy_offset: copy.offset,
+        repeat_share: repeat,
+        tiles,
     })
 }
 
@@ -404,6 +512,28 @@ pub struct SeamScore {
 /// wrap-around of a tileable image): each column joint's mean absolute
 /// luminance step, against the same for every other column and row boundary.
 pub fn seam_score(img: &ColorImage, cols: &[usize], rows: &[usize]) -> SeamScore {
+    steps_score(img, cols, rows, true)
+}
+
+/// Seam score of a grid image at its real joints: the inner tile boundaries,
+/// and the outer edge only when the grid wraps. A grid that does not wrap
+/// (an ω-tiling) leaves its outer edge out of the joints and of the interior.
+pub fn grid_seam(img: &ColorImage, grid: Grid) -> SeamScore {
+    let first = usize::from(!grid.wrap);
+    let cols: Vec<usize> = (first..)
+        .map(|k| k * grid.tile_width)
+        .take_while(|&c| c < img.width)
+        .collect();
+    let rows: Vec<usize> = (first..)
+        .map(|k| k * grid.tile_height)
+        .take_while(|&r| r < img.height)
+        .collect();
+    steps_score(img, &cols, &rows, grid.wrap)
+}
+
+/// The seam score of [`seam_score`]; without `wrap`, the boundary between the
+/// last and first column (and row) is left out.
+fn steps_score(img: &ColorImage, cols: &[usize], rows: &[usize], wrap: bool) -> SeamScore {
     let g = luminance(img);
     let (w, h) = (g.width, g.height);
     // Mean absolute step across the boundary before column (or row) `k`,
@@ -419,14 +549,15 @@ pub fn seam_score(img: &ColorImage, cols: &[usize], rows: &[usize]) -> SeamScore
     };
     let mut joints = Vec::new();
     let mut interior = Vec::new();
-    for c in 0..w {
+    let first = usize::from(!wrap);
+    for c in first..w {
         if cols.contains(&c) {
             joints.push(step(c, false));
         } else {
             interior.push(step(c, false));
         }
     }
-    for r in 0..h {
+    for r in first..h {
         if rows.contains(&r) {
             joints.push(step(r, true));
         } else {

@@ -1,0 +1,7 @@
+//! The engine's integration tests in one binary: exact search against a
+//! scalar reference, pruning, storage and LBG.
+
+mod engine;
+mod lbg;
+mod pruning;
+mod storage;
