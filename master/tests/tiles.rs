@@ -463,6 +463,50 @@ fn tiles_and_compare_on_the_command_line() {
     assert!(err.contains("texsyn tiles make"), "{err}");
     let err = refused(&[&assemble[..], &["--grid", "3by2", "-o", s(&out)]].concat());
     assert!(err.contains("WxH"), "{err}");
+
+    // Grids too large for memory or the format are refused before any work,
+    // and leave no output.
+    let big = dir.path().join("big.png");
+    for (grid, words) in [
+        ("2000x2000", &["--grid", "over the limit"][..]),
+        ("100000x1", &["--grid", "per side"][..]),
+    ] {
+        let err = refused(&[&assemble[..], &["--grid", grid, "-o", s(&big)]].concat());
+        assert!(words.iter().all(|w| err.contains(w)), "{grid}: {err}");
+        assert!(!err.contains("panicked") && !big.exists(), "{grid}: {err}");
+    }
+    let webp = dir.path().join("big.webp");
+    let err = refused(&[&assemble[..], &["--grid", "300x1", "-o", s(&webp)]].concat());
+    assert!(err.contains("WebP") && !webp.exists(), "{err}");
+
+    // Counts out of range are refused by name, never a panic.
+    let other = dir.path().join("other");
+    for (flag, value) in [
+        ("--overlap", "0"),
+        ("--overlap", "48"),
+        ("--candidates", "18446744073709551615"),
+        ("--population", "18446744073709551615"),
+        ("--baseline", "18446744073709551615"),
+        ("--threads", "0"),
+    ] {
+        let err = refused(&[&make[..], &[flag, value, "-q", "-o", s(&other)]].concat());
+        assert!(
+            err.contains(flag) && !err.contains("panicked"),
+            "{flag} {value}: {err}"
+        );
+    }
+
+    // The set's own measures: 8 distinct tiles that share some pixels.
+    let r = ok(&["compare", s(&set)]);
+    let m: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+    assert_eq!(
+        (m["tiles"].as_u64(), m["distinct_tiles"].as_u64()),
+        (Some(8), Some(8))
+    );
+    let overlap = m["tile_overlap"].as_f64().unwrap();
+    assert!(overlap > 0.0 && overlap < 1.0, "{m}");
+    let err = refused(&["compare", s(&sample)]);
+    assert!(err.contains("tile set directory"), "{err}");
 }
 
 /// `--stitch path` in the block method: the same output on 1 and 2

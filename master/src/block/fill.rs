@@ -5,6 +5,7 @@
 use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
+use rayon::prelude::*;
 use texsyn_engine::{Geometry, Layout, Positions, QueryBatch};
 
 use super::canvas::{set_pixel, Canvas};
@@ -108,7 +109,6 @@ pub(super) fn fill_level(
         Shape::Symmetric
     };
     let dims = ctx.layout.dims();
-    let (mut values, mut mask) = (vec![0u8; dims], vec![0u8; dims]);
     let mut stats = LevelStats::default();
     let mut batcher = Batcher::new(canvas, ctx.cfg.batch, n);
     let rekey_radius = ((n / 2 + b / 2) / b + 1) as isize;
@@ -123,20 +123,31 @@ pub(super) fn fill_level(
         stats.choose_seconds += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let mut batch = QueryBatch::new(ctx.layout);
-        for &(cx, cy) in &batcher.centres {
-            query(
-                canvas,
-                ctx.parent,
-                cx,
-                cy,
-                n,
-                ctx.geometry.m,
-                shape,
-                &mut values,
-                &mut mask,
-            );
+        // Each block's query read from the canvas in parallel, pushed in order.
+        let built: Vec<(Vec<u8>, Vec<u8>, Vec<u64>)> = {
+            let canvas = &*canvas;
+            batcher
+                .centres
+                .par_iter()
+                .map(|&(cx, cy)| {
+                    let (mut values, mut mask) = (vec![0u8; dims], vec![0u8; dims]);
+                    query(
+                        canvas,
+                        ctx.parent,
+                        cx,
+                        cy,
+                        n,
+                        ctx.geometry.m,
+                        shape,
+                        &mut values,
+                        &mut mask,
+                    );
+                    (values, mask, candidates(canvas, cx, cy, n, ctx.positions))
+                })
+                .collect()
+        };
+        for (values, mask, cands) in built {
             batch.push(&values, &mask)?;
-            let cands = candidates(canvas, cx, cy, n, ctx.positions);
             batch.set_candidates(batch.len() - 1, cands);
         }
         let chosen = &batcher.chosen;

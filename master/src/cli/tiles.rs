@@ -172,10 +172,39 @@ fn progress_bar(quiet: bool, len: usize, unit: &str, message: &'static str) -> O
     })
 }
 
-fn make(a: &MakeArgs) -> Result<()> {
-    if matches!(a.method, TileMethod::Omega) {
-        return super::thread_pool(a.threads)?.install(|| make_omega(a));
+/// The counts of `tiles make` within their ranges, checked before any work.
+fn check_counts(a: &MakeArgs) -> Result<()> {
+    let within = |v: usize, lo: usize, hi: usize, flag: &str| {
+        ensure!(
+            (lo..=hi).contains(&v),
+            "{flag} {v} is out of range: give {lo}..={hi}"
+        );
+        Ok(())
+    };
+    within(a.candidates, 1, 10_000, "--candidates")?;
+    within(a.population, 2, 1_000, "--population")?;
+    within(a.generations, 1, 10_000, "--generations")?;
+    within(a.patience, 0, 10_000, "--patience")?;
+    within(a.baseline, 0, 10_000, "--baseline")?;
+    if let Some(o) = a.overlap {
+        within(o, 1, 1 << 14, "--overlap")?;
     }
+    if let Some(t) = a.tile_size {
+        within(t, 4, 1 << 14, "--tile-size")?;
+    }
+    Ok(())
+}
+
+fn make(a: &MakeArgs) -> Result<()> {
+    check_counts(a)?;
+    let pool = super::thread_pool(a.threads)?;
+    if matches!(a.method, TileMethod::Omega) {
+        return pool.install(|| make_omega(a));
+    }
+    pool.install(|| make_somol(a))
+}
+
+fn make_somol(a: &MakeArgs) -> Result<()> {
     ensure!(
         (1..=99).contains(&a.tiles),
         "--tiles {} is out of range: give 1..=99",
@@ -190,6 +219,10 @@ fn make(a: &MakeArgs) -> Result<()> {
         (None, None) => (sample.width.min(sample.height) / 2).min(256),
     };
     let overlap = a.overlap.unwrap_or((size / 10).max(2));
+    ensure!(
+        2 * overlap < size,
+        "--overlap {overlap} must be under half the {size}-pixel tile: give a smaller --overlap or a larger --tile-size"
+    );
     let settings = TileSetSettings {
         tiles: a.tiles,
         min_size: (size * 4 / 5).max(2 * overlap + 1),
@@ -513,6 +546,18 @@ fn assemble(a: &AssembleArgs) -> Result<()> {
     let meta: serde_json::Value = serde_json::from_slice(&std::fs::read(&json)?)
         .with_context(|| format!("{} is not valid JSON", json.display()))?;
     let omega = omega_set_of(&meta)?;
+    // The grid's size is checked before its index or image is made.
+    let (tw, th) = (set[0].width, set[0].height);
+    let fits = |cols: usize, rows: usize, flag: &str| -> Result<()> {
+        let (w, h) = (cols.saturating_mul(tw), rows.saturating_mul(th));
+        imaging::check_size(w, h, "the assembled grid")
+            .with_context(|| format!("{flag}: {cols}x{rows} tiles of {tw}x{th} are too many"))?;
+        imaging::check_output_size(&a.output, w, h)
+    };
+    if a.index.is_none() {
+        let (cols, rows) = parse_pair(&a.grid, "--grid")?;
+        fits(cols, rows, "--grid")?;
+    }
     let index = match (&a.index, &omega) {
         (Some(p), _) => read_index(p)?,
         (None, Some(o)) => {
@@ -534,6 +579,9 @@ fn assemble(a: &AssembleArgs) -> Result<()> {
             tiles::random_index(set.len(), cols, rows, a.seed)
         }
     };
+    if a.index.is_some() {
+        fits(index.first().map_or(0, Vec::len), index.len(), "--index")?;
+    }
     let in_range = index
         .iter()
         .flatten()

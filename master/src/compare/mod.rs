@@ -87,6 +87,10 @@ pub struct Grid {
     pub wrap: bool,
 }
 
+/// Most pixels per image `compare` takes: the patch-fidelity search holds a
+/// vector per pixel of A (about 1 GiB at this size) and S_F a complex FFT.
+pub const MAX_COMPARE_PIXELS: usize = 4096 * 4096;
+
 /// Compares B with A on every measure; B is taken as tileable (its seam is
 /// the wrap-around).
 pub fn compare(a: &ColorImage, b: &ColorImage) -> Result<Scores> {
@@ -96,6 +100,15 @@ pub fn compare(a: &ColorImage, b: &ColorImage) -> Result<Scores> {
 /// Compares B with A on every measure; with a `grid`, B is a grid of tiles
 /// whose seam is taken at its joints and whose tiles are compared.
 pub fn compare_with(a: &ColorImage, b: &ColorImage, grid: Option<Grid>) -> Result<Scores> {
+    for (img, what) in [(a, "the sample"), (b, "the compared texture")] {
+        ensure!(
+            img.len() <= MAX_COMPARE_PIXELS,
+            "{what} is {}x{} pixels; compare takes at most {} Mi pixels per image (4096x4096): compare a crop",
+            img.width,
+            img.height,
+            MAX_COMPARE_PIXELS >> 20
+        );
+    }
     let timed = |what: &str, t: std::time::Instant| {
         tracing::info!(seconds = t.elapsed().as_secs_f64(), "compare: {what}");
     };

@@ -332,3 +332,13 @@ proptest! {
         prop_assert!((repeat_share(&b) - repeat_reference(&b)).abs() < 1e-12);
     }
 }
+
+#[test]
+fn images_past_the_size_cap_are_refused_before_any_measure() {
+    let small = noise(16, 16, 255, 1);
+    let big = ColorImage::new(4097, 4096);
+    for (a, b) in [(&small, &big), (&big, &small)] {
+        let e = compare_with(a, b, None).unwrap_err().to_string();
+        assert!(e.contains("4097x4096") && e.contains("crop"), "{e}");
+    }
+}

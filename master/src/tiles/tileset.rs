@@ -576,6 +576,11 @@ pub fn assemble(tiles: &[ColorImage], index: &[Vec<usize>]) -> anyhow::Result<Co
         rows > 0 && cols > 0 && index.iter().all(|r| r.len() == cols),
         "the index matrix must be a non-empty rectangle"
     );
+    crate::imaging::check_size(
+        cols.saturating_mul(tw),
+        rows.saturating_mul(th),
+        "the assembled grid",
+    )?;
     let mut out = ColorImage::new(cols * tw, rows * th);
     for (r, row) in index.iter().enumerate() {
         for (c, &n) in row.iter().enumerate() {

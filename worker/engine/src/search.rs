@@ -300,9 +300,12 @@ impl Engine {
         let layout = space.layout();
         let (windowed, scanned): (Vec<usize>, Vec<usize>) =
             (0..queries.len()).partition(|&q| self.prune && space.keyed(params, queries.mask(q)));
-        let mut best = start.clone();
-        let mut stats = PruneStats::default();
-        if !windowed.is_empty() {
+        // The two kinds of query are searched side by side, so that the tail
+        // of one overlaps the other instead of leaving threads idle.
+        let keyed = || -> Option<(Vec<Hit>, PruneStats)> {
+            if windowed.is_empty() {
+                return None;
+            }
             let sweep = Sweep {
                 kernel: self.kernel,
                 layout,
@@ -315,13 +318,12 @@ impl Engine {
                 .map(|&q| (queries.values(q), queries.mask(q)))
                 .collect();
             let from: Vec<Hit> = windowed.iter().map(|&q| start[q]).collect();
-            let (found, s) = space.search_keyed(&sweep, &qs, &from);
-            for (&q, hit) in windowed.iter().zip(found) {
-                best[q] = hit;
+            Some(space.search_keyed(&sweep, &qs, &from))
+        };
+        let scan = || -> Option<(Vec<Hit>, PruneStats)> {
+            if scanned.is_empty() {
+                return None;
             }
-            stats.add(&s);
-        }
-        if !scanned.is_empty() {
             let sub = if windowed.is_empty() {
                 Cow::Borrowed(queries)
             } else {
@@ -345,12 +347,22 @@ impl Engine {
                 })
                 .collect();
             let mut sub_best = sub_start;
+            let mut stats = PruneStats::default();
             for (p, s) in &parts {
                 merge_best(&mut sub_best, p);
                 stats.add(s);
             }
-            for (&q, h) in scanned.iter().zip(sub_best) {
-                best[q] = h;
+            Some((sub_best, stats))
+        };
+        let (keyed, scan) = rayon::join(keyed, scan);
+        let mut best = start;
+        let mut stats = PruneStats::default();
+        for (qs, found) in [(&windowed, keyed), (&scanned, scan)] {
+            if let Some((hits, s)) = found {
+                for (&q, h) in qs.iter().zip(hits) {
+                    best[q] = h;
+                }
+                stats.add(&s);
             }
         }
         for (q, b) in best.iter_mut().enumerate() {
@@ -371,8 +383,13 @@ impl Engine {
         params: &Params,
     ) -> Vec<Hit> {
         let layout = space.layout();
+        // Parallel over the queries: a batch's candidates are as many
+        // distances as a sizeable part of its sweep, and done serially they
+        // left the other threads idle.
         (0..queries.len())
+            .into_par_iter()
             .map(|q| {
+                let _busy = BusyTimer::start();
                 let mut best = queries.bound(q);
                 let candidates = if self.prune {
                     queries.candidates(q)

@@ -19,6 +19,8 @@
 
 use std::ops::Range;
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use rayon::prelude::*;
 
 use crate::kernel::{head_bytes, prefetch, Kernel, Params, PruneStats};
@@ -28,6 +30,10 @@ use crate::space::AlignedBytes;
 
 /// Slots tested between two looks at a query's best answer.
 const BLOCK: usize = 64;
+/// Parts of a keyed sweep per search thread: with the bounds shared between
+/// parts, finer parts cost little extra work and shorten the wait for the
+/// last one.
+const PARTS_PER_THREAD: usize = 8;
 
 /// The vectors of a dense space in key order: keys, local indices and heads.
 #[derive(Debug, Clone)]
@@ -71,6 +77,28 @@ struct Probe<'a> {
 fn key_of(layout: &Layout, v: &[u8]) -> u64 {
     let lo = layout.hi_pad..layout.hi_pad + layout.lo_len;
     v[lo].iter().map(|&b| u64::from(b)).sum()
+}
+
+/// Per query the least distance any part of a sweep has found so far,
+/// shared by the parts: each part prunes against the best of all of them,
+/// so splitting a batch over more threads adds little work. Only vectors
+/// strictly above a distance already found are skipped, and the parts'
+/// answers are merged by (distance, index), so the answers are the same
+/// whatever the order in which the parts run; only the pruning figures vary.
+struct Bounds(Vec<AtomicU64>);
+
+impl Bounds {
+    fn new(start: &[Hit]) -> Self {
+        Self(start.iter().map(|h| AtomicU64::new(h.dist)).collect())
+    }
+
+    fn get(&self, i: usize) -> u64 {
+        self.0[i].load(Ordering::Relaxed)
+    }
+
+    fn lower(&self, i: usize, d: u64) {
+        self.0[i].fetch_min(d, Ordering::Relaxed);
+    }
 }
 
 /// Cuts the slots the `windows` cover into at most `parts` ranges of about
@@ -211,22 +239,11 @@ impl KeyIndex {
             .collect();
         let windows: Vec<Range<usize>> = probes.iter().map(|p| p.window.clone()).collect();
         let threads = rayon::current_num_threads().max(1);
-        let cut = if std::env::var_os("TEXSYN_EVEN_SPLIT").is_some() {
-            let from = windows.iter().map(|w| w.start).min().unwrap_or(0);
-            let to = windows.iter().map(|w| w.end).max().unwrap_or(0);
-            let per = (to.saturating_sub(from))
-                .div_ceil(threads * 4)
-                .max(sw.min_part.max(1));
-            (from..to)
-                .step_by(per)
-                .map(|a| a..(a + per).min(to))
-                .collect()
-        } else {
-            balanced_parts(&windows, threads * 4, sw.min_part.max(1))
-        };
+        let cut = balanced_parts(&windows, threads * PARTS_PER_THREAD, sw.min_part.max(1));
+        let shared = Bounds::new(start);
         let parts: Vec<(Vec<Hit>, PruneStats)> = cut
             .into_par_iter()
-            .map(|part| self.sweep(sw, dense, probes.clone(), part))
+            .map(|part| self.sweep(sw, dense, probes.clone(), part, &shared))
             .collect();
         merged(sw, start, &parts)
     }
@@ -241,6 +258,7 @@ impl KeyIndex {
         dense: &Dense,
         mut probes: Vec<Probe>,
         part: Range<usize>,
+        shared: &Bounds,
     ) -> (Vec<Hit>, PruneStats) {
         let s = sw.layout.stride();
         let hb = self.hb;
@@ -255,11 +273,14 @@ impl KeyIndex {
         while a < part.end {
             let block = a..(a + BLOCK).min(part.end);
             a = block.end;
-            for p in probes.iter_mut() {
+            for (i, p) in probes.iter_mut().enumerate() {
                 let slots = block.start.max(p.window.start)..block.end.min(p.window.end);
                 if slots.is_empty() {
                     continue;
                 }
+                // The best any part has found so far: vectors above it
+                // cannot win, whichever part holds them.
+                let bound = shared.get(i).min(p.best.dist);
                 let n = slots.len();
                 let heads = &self.heads.as_slice()[slots.start * hb..slots.end * hb];
                 let qh = &p.q[sw.layout.hi_pad..sw.layout.hi_pad + hb];
@@ -270,7 +291,7 @@ impl KeyIndex {
                 // all of their cache lines before scoring the first one.
                 let mut count = 0;
                 for (k, &d) in dist[..n].iter().enumerate() {
-                    if d > p.best.dist {
+                    if d > bound {
                         continue;
                     }
                     let id = self.ids[slots.start + k] as usize;
@@ -280,29 +301,35 @@ impl KeyIndex {
                         count += 1;
                     }
                 }
+                let mut bound = bound;
                 let before = p.best;
                 for &k in &next[..count] {
                     let (k, d) = (k as usize, dist[k as usize]);
-                    if d > p.best.dist {
+                    if d > bound {
                         continue;
                     }
                     let id = self.ids[slots.start + k] as usize;
                     let v = &dense.data[id * s..(id + 1) * s];
-                    let full =
-                        sw.kernel
-                            .finish(&sw.layout, &sw.params, hb, v, p.q, p.m, d, p.best.dist);
+                    let full = sw
+                        .kernel
+                        .finish(&sw.layout, &sw.params, hb, v, p.q, p.m, d, bound);
                     stats.pruned += 1;
                     stats.chunks += chunks;
                     let hit = Hit {
                         index: dense.base + id as u64,
                         dist: full,
                     };
-                    if hit.key() < p.best.key() {
+                    // Above the bound `full` may be a partial sum: never an answer.
+                    if full <= bound && hit.key() < p.best.key() {
                         p.best = hit;
+                        bound = full;
                     }
                 }
                 if p.best.dist < before.dist {
-                    let w = self.window(p.key, Self::reach(sw, p.best.dist));
+                    shared.lower(i, p.best.dist);
+                }
+                if bound < before.dist {
+                    let w = self.window(p.key, Self::reach(sw, bound));
                     p.window = p.window.start.max(w.start)..p.window.end.min(w.end);
                 }
             }
