@@ -360,6 +360,60 @@ fn transform_writes_frames_gif_webp_and_path_through_a_key_and_a_jump() {
     );
 }
 
+/// A catalogue whose descriptors are cut short, a FIFO and a device as
+/// catalogues: refused with the fix named, never a panic or a hang.
+#[test]
+fn damaged_or_special_catalogue_files_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |f: &str| dir.path().join(f);
+    let target = common::assets().join("brick_color_96.png");
+    let cat = small_catalogue(dir.path(), "stripes");
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&cat).unwrap()).unwrap();
+    for field in ["quantiles", "bands"] {
+        let mut cut = json.clone();
+        cut["shaders"][0]["samples"][0]["structure"][field]
+            .as_array_mut()
+            .unwrap()
+            .truncate(1);
+        std::fs::write(d("cut.json"), cut.to_string()).unwrap();
+        let e = refused(&[
+            "match",
+            s(&target),
+            "--catalogue",
+            s(&d("cut.json")),
+            "-o",
+            s(&d("o.png")),
+        ]);
+        assert!(
+            e.contains("malformed") && e.contains("rebuild") && !e.contains("panicked"),
+            "{field}: {e}"
+        );
+    }
+    let fifo = d("fifo.json");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+    if made.is_ok_and(|st| st.success()) {
+        let e = refused(&[
+            "match",
+            s(&target),
+            "--catalogue",
+            s(&fifo),
+            "-o",
+            s(&d("o.png")),
+        ]);
+        assert!(e.contains("not a regular file"), "{e}");
+    }
+    let e = refused(&[
+        "match",
+        s(&target),
+        "--catalogue",
+        "/dev/zero",
+        "-o",
+        s(&d("o.png")),
+    ]);
+    assert!(e.contains("not a regular file"), "{e}");
+    assert!(!d("o.png").exists());
+}
+
 #[test]
 fn bad_input_is_refused_with_the_fix_named() {
     let dir = tempfile::tempdir().unwrap();

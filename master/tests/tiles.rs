@@ -697,4 +697,18 @@ fn omega_tiles_on_the_command_line() {
     assert!(err.contains("--set 8, 17 or 38"), "{err}");
     let err = make_refused(&["--tile-size", "200"]);
     assert!(err.contains("--tile-size"), "{err}");
+
+    // A cut tileset.json (fewer ω-tiles listed than the set holds) is an
+    // error naming the fix, with an index as with a grid, never a panic.
+    let mut cut = json(&one, "tileset.json");
+    cut["set"].as_array_mut().unwrap().truncate(3);
+    std::fs::write(one.join("tileset.json"), cut.to_string()).unwrap();
+    std::fs::write(&csv, "8,8\n").unwrap();
+    for how in [&["--index", s(&csv)][..], &["--grid", "2x2"][..]] {
+        let err = refused(&[&["tiles", "assemble", s(&one)][..], how, &["-o", s(&grid)]].concat());
+        assert!(
+            err.contains("damaged") && !err.contains("panicked"),
+            "{how:?}: {err}"
+        );
+    }
 }

@@ -558,17 +558,19 @@ fn assemble(a: &AssembleArgs) -> Result<()> {
         let (cols, rows) = parse_pair(&a.grid, "--grid")?;
         fits(cols, rows, "--grid")?;
     }
+    if let Some(o) = &omega {
+        ensure!(
+            o.tiles.len() == set.len(),
+            "tileset.json lists {} ω-tiles but {} holds {}: the set is damaged, make it again with `texsyn tiles make`",
+            o.tiles.len(),
+            a.dir.display(),
+            set.len()
+        );
+    }
     let index = match (&a.index, &omega) {
         (Some(p), _) => read_index(p)?,
         (None, Some(o)) => {
             let (cols, rows) = parse_pair(&a.grid, "--grid")?;
-            ensure!(
-                o.tiles.len() == set.len(),
-                "tileset.json lists {} ω-tiles but {} holds {}",
-                o.tiles.len(),
-                a.dir.display(),
-                set.len()
-            );
             tiles::omega::scan_line_tiling(o, cols, rows, a.seed)?
                 .into_iter()
                 .map(|r| r.into_iter().map(|k| k + 1).collect())

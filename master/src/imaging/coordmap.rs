@@ -58,8 +58,13 @@ fn bytes_of(v: &[u16]) -> Vec<u8> {
     v.iter().flat_map(|s| s.to_ne_bytes()).collect()
 }
 
+/// Largest coordinate map file read: an uncompressed 16-bit RGB map of
+/// [`super::MAX_PIXELS`] pixels.
+const MAX_COORD_MAP_BYTES: u64 = super::MAX_PIXELS as u64 * 6 + (1 << 20);
+
 /// Reads a coordinate map written by [`save_coord_map`]: its size and entries.
 pub fn load_coord_map(path: &Path) -> Result<(usize, usize, Vec<[u32; 2]>)> {
+    super::check_regular(path, MAX_COORD_MAP_BYTES, "coordinate map")?;
     let img = image::ImageReader::open(path)
         .with_context(|| format!("cannot open coordinate map {}", path.display()))?
         .with_guessed_format()

@@ -502,3 +502,42 @@ pub fn check_writable(path: &Path) -> anyhow::Result<()> {
     output_format(path)?;
     check_writable_any(path)
 }
+
+/// Checks that `path` is a regular file (not a FIFO, device or directory) of
+/// at most `max` bytes, before anything opens it: a FIFO would block the read
+/// and `/dev/zero` would fill memory. `what` names the file in the message.
+pub fn check_regular(path: &Path, max: u64, what: &str) -> anyhow::Result<u64> {
+    let meta = std::fs::metadata(path)
+        .map_err(|e| anyhow::anyhow!("cannot read {what} {}: {e}", path.display()))?;
+    anyhow::ensure!(
+        meta.is_file(),
+        "{what} {} is not a regular file; give the file itself",
+        path.display()
+    );
+    anyhow::ensure!(
+        meta.len() <= max,
+        "{what} {} is {} bytes, over the {} MiB a {what} may have; give the file texsyn wrote",
+        path.display(),
+        meta.len(),
+        max >> 20
+    );
+    Ok(meta.len())
+}
+
+/// Reads a regular file of at most `max` bytes ([`check_regular`]), never
+/// more than `max` bytes even if it grows meanwhile.
+pub fn read_regular(path: &Path, max: u64, what: &str) -> anyhow::Result<Vec<u8>> {
+    use std::io::Read;
+    check_regular(path, max, what)?;
+    let mut bytes = Vec::new();
+    std::fs::File::open(path)
+        .and_then(|f| f.take(max + 1).read_to_end(&mut bytes))
+        .map_err(|e| anyhow::anyhow!("cannot read {what} {}: {e}", path.display()))?;
+    anyhow::ensure!(
+        bytes.len() as u64 <= max,
+        "{what} {} grew past {} MiB while it was read",
+        path.display(),
+        max >> 20
+    );
+    Ok(bytes)
+}

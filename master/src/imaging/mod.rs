@@ -42,8 +42,8 @@ pub use atomic::check_writable_any;
 pub use coordmap::{check_coord_map_path, load_coord_map, save_coord_map};
 pub use deep::{Channels, DeepImage, Depth, PixelFormat, SearchView};
 pub use io::{
-    check_output_format, check_output_size, check_writable, load_alpha_mask, load_color,
-    load_image, load_mask, save_bytes, save_color, save_gray, save_image,
+    check_output_format, check_output_size, check_regular, check_writable, load_alpha_mask,
+    load_color, load_image, load_mask, read_regular, save_bytes, save_color, save_gray, save_image,
 };
 
 /// Largest number of pixels of an input image or canvas (64 Mi pixels).

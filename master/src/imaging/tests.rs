@@ -588,3 +588,33 @@ fn a_narrow_16_bit_range_is_stretched_and_shared() {
     });
     assert_eq!(rgb8.search_colour_in(&view).rgb, vec![1, 2, 3, 4, 5, 6]);
 }
+
+/// Coordinate maps and volumes are read only from regular files of the right
+/// size: a FIFO would block, `/dev/zero` fill memory, a cut `.raw` misread.
+#[test]
+fn special_and_cut_files_are_refused_before_reading() {
+    use super::volume::Volume;
+    let dir = tempfile::tempdir().unwrap();
+    let e = super::load_coord_map(Path::new("/dev/zero")).unwrap_err();
+    assert!(e.to_string().contains("not a regular file"), "{e:#}");
+    let fifo = dir.path().join("fifo.png");
+    if std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .is_ok_and(|s| s.success())
+    {
+        let e = super::load_coord_map(&fifo).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e:#}");
+    }
+    let v = Volume::new([4, 3, 2], 3, (0..72).collect()).unwrap();
+    let header = v.save(dir.path(), "solid", None).unwrap();
+    assert_eq!(Volume::load(&header).unwrap().0.size, [4, 3, 2]);
+    let raw = dir.path().join("solid.raw");
+    std::fs::write(&raw, vec![0u8; 71]).unwrap();
+    let e = Volume::load(&header).unwrap_err();
+    assert!(e.to_string().contains("71 bytes"), "{e:#}");
+    std::fs::remove_file(&raw).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", &raw).unwrap();
+    let e = Volume::load(&header).unwrap_err();
+    assert!(e.to_string().contains("not a regular file"), "{e:#}");
+}

@@ -181,8 +181,7 @@ impl Volume {
 
     /// Reads a volume from its JSON header (the raw file beside it).
     pub fn load(header: &Path) -> Result<(Self, Header)> {
-        let text = std::fs::read(header)
-            .with_context(|| format!("cannot read volume header {}", header.display()))?;
+        let text = super::read_regular(header, 1 << 20, "volume header")?;
         let h: Header = serde_json::from_slice(&text).with_context(|| {
             format!(
                 "{} is not a volume header (the .json that `texsyn solid` writes beside a .raw)",
@@ -209,8 +208,21 @@ impl Volume {
             h.data
         );
         let raw = header.with_file_name(&h.data);
-        let data = std::fs::read(&raw)
-            .with_context(|| format!("cannot read volume data {}", raw.display()))?;
+        // The data must be exactly as long as the header says, checked before
+        // it is read.
+        let expect = h
+            .size
+            .iter()
+            .try_fold(h.channels as u64, |n, &s| n.checked_mul(s as u64))
+            .filter(|&n| n <= 1 << 34)
+            .with_context(|| format!("{}: the size {:?} is too large", header.display(), h.size))?;
+        let len = super::check_regular(&raw, expect, "volume data")?;
+        ensure!(
+            len == expect,
+            "{} does not match its header: it is {len} bytes, the header says {expect}; write the solid again",
+            raw.display()
+        );
+        let data = super::read_regular(&raw, expect, "volume data")?;
         let v = Self::new(h.size, h.channels, data)
             .with_context(|| format!("{} does not match its header", raw.display()))?;
         Ok((v, h))

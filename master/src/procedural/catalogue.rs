@@ -25,6 +25,8 @@ use crate::imaging;
 
 /// The file format's version; a catalogue of another version is rebuilt.
 pub const VERSION: u32 = 1;
+/// Largest catalogue file read (the default catalogue is a few MiB).
+const MAX_CATALOGUE_BYTES: u64 = 256 << 20;
 /// Render side of the catalogue's samples (and of the matching analysis).
 pub const DEFAULT_SIZE: usize = 128;
 /// Samples per shader (the paper's catalogues held about 200).
@@ -398,13 +400,13 @@ impl Catalogue {
             "rebuild it with: texsyn match catalogue -o {}",
             path.display()
         );
-        let bytes = std::fs::read(path).with_context(|| {
-            format!(
-                "cannot read the catalogue {}; build one with: texsyn match catalogue -o {}",
-                path.display(),
-                path.display()
-            )
-        })?;
+        let bytes =
+            imaging::read_regular(path, MAX_CATALOGUE_BYTES, "catalogue").with_context(|| {
+                format!(
+                    "build a catalogue with: texsyn match catalogue -o {}",
+                    path.display()
+                )
+            })?;
         let cat: Catalogue = serde_json::from_slice(&bytes).map_err(|e| {
             anyhow::anyhow!(
                 "{} is not a texsyn catalogue ({e}); {rebuild}",
@@ -423,6 +425,9 @@ impl Catalogue {
             "catalogue {} is empty or has a bad size; {rebuild}",
             path.display()
         );
+        // Every descriptor must have the shape this texsyn computes at the
+        // catalogue's size: a short one would index past its end.
+        let reference = Structure::of_values(&vec![0.0; cat.size * cat.size], cat.size, cat.size);
         for sc in &cat.shaders {
             let s = super::shaders::by_name(&sc.shader).with_context(|| {
                 format!(
@@ -437,9 +442,20 @@ impl Catalogue {
                 path.display(),
                 sc.shader
             );
+            let shape = |d: &Structure| {
+                (
+                    d.spectrum.len(),
+                    d.bands.iter().map(Vec::len).collect::<Vec<_>>(),
+                    d.quantiles.len(),
+                )
+            };
             ensure!(
                 !sc.samples.is_empty()
-                    && sc.samples.iter().all(|x| x.params.len() == s.params.len()),
+                    && sc.samples.iter().all(|x| x.params.len() == s.params.len())
+                    && sc
+                        .samples
+                        .iter()
+                        .all(|x| shape(&x.structure) == shape(&reference)),
                 "catalogue {} has malformed samples of shader '{}'; {rebuild}",
                 path.display(),
                 sc.shader
