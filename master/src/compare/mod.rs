@@ -131,9 +131,8 @@ pub fn compare_with(a: &ColorImage, b: &ColorImage, grid: Option<Grid>) -> Resul
                 b.height
             );
             let cells = repetition::grid_cells(b, g.tile_width, g.tile_height);
-            let first = repetition::distinct_tiles(&cells);
-            let distinct = first.iter().enumerate().filter(|&(i, &f)| i == f).count();
-            let overlap = tile_overlap(&cells).unwrap_or(0.0);
+            let (distinct, overlap) = repetition::tile_measures(&cells);
+            let overlap = overlap.unwrap_or(0.0);
             (
                 grid_seam(b, g),
                 Some(GridScores {

@@ -315,10 +315,17 @@ pub fn distinct_tiles(tiles: &[ColorImage]) -> Vec<usize> {
 /// size), of the share of pixels that are equal in both; 1 when all tiles are
 /// one image, `None` for fewer than two tiles.
 pub fn tile_overlap(tiles: &[ColorImage]) -> Option<f64> {
-    if tiles.len() < 2 {
-        return None;
-    }
+    tile_measures(tiles).1
+}
+
+/// The number of distinct tile images among `tiles` and their
+/// [`tile_overlap`], finding the distinct images once.
+pub fn tile_measures(tiles: &[ColorImage]) -> (usize, Option<f64>) {
     let first = distinct_tiles(tiles);
+    let count = first.iter().enumerate().filter(|&(i, &f)| i == f).count();
+    if tiles.len() < 2 {
+        return (count, None);
+    }
     let distinct: Vec<Packed> = first
         .iter()
         .enumerate()
@@ -326,7 +333,7 @@ pub fn tile_overlap(tiles: &[ColorImage]) -> Option<f64> {
         .map(|(i, _)| Packed::of(&tiles[i]))
         .collect();
     if distinct.len() < 2 {
-        return Some(1.0);
+        return (count, Some(1.0));
     }
     let pairs: Vec<(usize, usize)> = (0..distinct.len())
         .flat_map(|i| (i + 1..distinct.len()).map(move |j| (i, j)))
@@ -339,7 +346,7 @@ pub fn tile_overlap(tiles: &[ColorImage]) -> Option<f64> {
             equal as f64 / p.len().max(1) as f64
         })
         .sum();
-    Some(total / pairs.len() as f64)
+    (count, Some(total / pairs.len() as f64))
 }
 
 /// The full `tw`×`th` cells of a grid image, row by row.

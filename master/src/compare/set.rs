@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::{ensure, Context, Result};
 use serde::{Deserialize, Serialize};
 
-use super::repetition::{distinct_tiles, tile_overlap};
+use super::repetition::tile_measures;
 use crate::imaging::{self, ColorImage};
 
 /// Largest `tileset.json` read.
@@ -96,8 +96,7 @@ pub fn set_scores(dir: &Path) -> Result<SetScores> {
         "{} holds no tile_01.png: give a directory written by `texsyn tiles make`",
         dir.display()
     );
-    let first = distinct_tiles(&tiles);
-    let distinct = first.iter().enumerate().filter(|&(i, &f)| i == f).count();
+    let (distinct, overlap) = tile_measures(&tiles);
     let omega = file.method == "omega";
     let (tw, th) = (file.tile_width, file.tile_height);
     let p = &file.patches;
@@ -112,7 +111,7 @@ pub fn set_scores(dir: &Path) -> Result<SetScores> {
         method: file.method.clone(),
         tiles: tiles.len(),
         distinct_tiles: distinct,
-        tile_overlap: tile_overlap(&tiles).unwrap_or(0.0),
+        tile_overlap: overlap.unwrap_or(0.0),
         colours: omega.then_some(p.len()),
         distinct_patches: omega.then_some(distinct_patches),
         patch_overlap: omega.then(|| pairs.iter().sum::<f64>() / pairs.len().max(1) as f64),
