@@ -17,10 +17,10 @@ use std::time::Instant;
 use anyhow::{ensure, Context, Result};
 use clap::Args;
 use rand::{Rng, SeedableRng};
-use texsyn::block::pyramid;
 use texsyn::cluster::{ClusterOptions, ClusterSearch};
 use texsyn::imaging;
 use texsyn::launch::{find_worker_binary, LocalWorkers};
+use texsyn::pyramid;
 use texsyn::search::{LevelData, LocalSearch, SearchBackend};
 use texsyn_engine::{
     Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample, VectorSpace, Weights,
@@ -204,7 +204,7 @@ pub fn run(a: &ClusterArgs) -> Result<()> {
     );
     let file = a.textures.dir()?.join("gravel_gray_500.png");
     let img = imaging::load_color(&file)?;
-    let lum = texsyn::ycbcr::luminance(&img);
+    let lum = texsyn::imaging::colour::luminance(&img);
     let parent = pyramid::downsample(&lum, None, false);
     let geometry = Geometry::new(11, Geometry::parent_window_for(11))?;
     let params = Params {

@@ -16,17 +16,20 @@
 //! the search backends and, where it fits, `block::pyramid`.
 
 pub mod block;
+pub mod budget;
 pub mod cleanup;
 pub mod cli;
 pub mod cluster;
 pub mod compare;
+pub mod filters;
 pub mod imaging;
 pub mod launch;
 pub mod parallel;
 pub mod procedural;
+pub mod pyramid;
+pub mod seams;
 pub mod search;
 pub mod tiles;
-pub mod ycbcr;
 
 pub use block::{
     synthesize, Config, FillSource, Mode, Output, Position, Report, Stitch, SynthMethod,

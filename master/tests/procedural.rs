@@ -342,7 +342,7 @@ fn transform_writes_frames_gif_webp_and_path_through_a_key_and_a_jump() {
     // the weaker end (the jump keeps each side's dark-light orientation,
     // and flat samples are neither jump points nor path points).
     let sd = |img: &ColorImage| {
-        let l = texsyn::ycbcr::luminance(img);
+        let l = texsyn::imaging::colour::luminance(img);
         let n = l.data.len() as f64;
         let m = l.data.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
         (l.data

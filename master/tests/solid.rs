@@ -346,7 +346,7 @@ fn bad_input_is_refused_with_the_fix_named() {
         ),
         (vec!["--size", "4000"], "choose a smaller --size"),
         (
-            vec!["--size", "64", "--max-memory", "0.001"],
+            vec!["--size", "64", "--max-memory", "1"],
             "are allowed (--max-memory)",
         ),
         (vec!["--size", "32x32"], "is not N or XxYxZ"),

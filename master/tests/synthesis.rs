@@ -6,9 +6,10 @@ use crate::common;
 
 use common::{run, seam, texture};
 use texsyn::block::Silent;
+use texsyn::imaging::colour as ycbcr;
 use texsyn::imaging::ColorImage;
 use texsyn::search::{LevelData, LocalSearch, SearchBackend};
-use texsyn::{synthesize, ycbcr, Config, Mode, Output, Position, SynthMethod};
+use texsyn::{synthesize, Config, Mode, Output, Position, SynthMethod};
 use texsyn_engine::{Engine, Hit, Kernel, Metric, QueryBatch};
 
 /// Every output pixel is the colour-sample pixel its copy-map entry names.

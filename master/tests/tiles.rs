@@ -10,7 +10,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use texsyn::compare;
 use texsyn::imaging::ColorImage;
-use texsyn::tiles::path::{self, ErrorMap, Oscillating, Start};
+use texsyn::seams::{self as path, ErrorMap, Oscillating, Start};
 use texsyn::tiles::stitch::{self, Belt, Side, StitchSettings};
 use texsyn::tiles::{self, PathSearch, Rect, TileSetSettings};
 
@@ -377,7 +377,10 @@ fn patch_fidelity_matches_a_scalar_reference() {
     let beans = texture("coffee_beans_color_512.png");
     let a = crop(&beans, 10, 10, 40, 33);
     let b = crop(&beans, 200, 90, 25, 31);
-    let (la, lb) = (texsyn::ycbcr::luminance(&a), texsyn::ycbcr::luminance(&b));
+    let (la, lb) = (
+        texsyn::imaging::colour::luminance(&a),
+        texsyn::imaging::colour::luminance(&b),
+    );
     let mut total = 0u64;
     let mut n = 0u64;
     for y in (0..=lb.height - 7).step_by(3) {

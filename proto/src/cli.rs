@@ -15,14 +15,14 @@ pub fn parse_or_exit<C: clap::Parser>(program: &str) -> C {
         ) {
             e.exit()
         }
-        eprintln!("{program}: error: {}", one_line(&e.render().to_string()));
+        eprintln!("{program}: error: {}", usage_line(&e.render().to_string()));
         std::process::exit(1)
     })
 }
 
 /// A clap error as one line, without the usage and the "for more
 /// information" lines, pointing at `--help`.
-fn one_line(text: &str) -> String {
+fn usage_line(text: &str) -> String {
     let parts: Vec<&str> = text
         .lines()
         .map(str::trim)
@@ -36,6 +36,16 @@ fn one_line(text: &str) -> String {
         line.push_str(" (see --help)");
     }
     line
+}
+
+/// An error message as one line (line breaks of nested causes become spaces).
+pub fn one_line(message: &str) -> String {
+    message
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// Parses a number of seconds in `min..=max` (finite), as a clap value
@@ -66,7 +76,7 @@ mod tests {
     fn clap_errors_become_one_line() {
         let text = "error: unexpected argument '--x' found\n\nUsage: texsyn [OPTIONS]\n\nFor more information, try '--help'.\n";
         assert_eq!(
-            one_line(text),
+            usage_line(text),
             "unexpected argument '--x' found (see --help)"
         );
     }

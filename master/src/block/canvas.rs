@@ -11,8 +11,8 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
 use super::plan::LevelSample;
-use super::pyramid;
 use super::{Mode, Position, SynthMethod};
+use crate::pyramid;
 
 /// One pyramid level of the output: luminance, which pixels are defined, and
 /// for each defined pixel the sample coordinate it came from (the copy map).

@@ -7,8 +7,8 @@
 
 use anyhow::bail;
 
+use crate::imaging::colour::{from_ycc, to_ycc};
 use crate::imaging::ColorImage;
-use crate::ycbcr::{from_ycc, to_ycc};
 
 /// Rebuilds colour: output pixel `i` = `sample` at `copy_map[i]` (`[x, y]`).
 /// Fails if the map does not have `width * height` entries or points outside
@@ -175,7 +175,7 @@ impl Window {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ycbcr::luminance;
+    use crate::imaging::colour::luminance;
 
     fn sample(w: usize, h: usize, seed: u32) -> ColorImage {
         let mut s = seed.wrapping_mul(2_654_435_761) | 1;

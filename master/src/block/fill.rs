@@ -316,7 +316,7 @@ fn stitch_block(
     known: &[bool],
     band: usize,
 ) {
-    use crate::tiles::path::{optimal, ErrorMap};
+    use crate::seams::{optimal, ErrorMap};
     let b = grid.b;
     let (bx, by) = grid.xy(blk);
     let (x0, y0) = ((bx * b) as isize, (by * b) as isize);

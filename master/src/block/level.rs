@@ -12,8 +12,9 @@ use super::canvas::{self, Canvas};
 use super::fill::{fill_level, LevelContext};
 use super::neighbourhood::colour_vectors;
 use super::plan::Plan;
-use super::{pyramid, LevelReport, Progress};
+use super::{LevelReport, Progress};
 use crate::imaging::Gray;
+use crate::pyramid;
 use crate::search::{LevelData, SearchBackend};
 
 /// A finished level.

@@ -29,7 +29,6 @@ mod finish;
 mod level;
 pub mod neighbourhood;
 mod plan;
-pub mod pyramid;
 pub mod queue;
 
 pub use config::{Config, FillSource, Mode, Position, Stitch, SynthMethod, MAX_CANVAS_PIXELS};

@@ -10,10 +10,10 @@ use texsyn_engine::layout::reference_positions;
 use texsyn_engine::{Geometry, Params, Plane, Sample};
 
 use super::canvas::{self, Placement};
-use super::pyramid;
 use super::{Config, Mode, SynthMethod, MAX_CANVAS_PIXELS};
+use crate::imaging::colour as ycbcr;
 use crate::imaging::{self, ColorImage, Gray};
-use crate::ycbcr;
+use crate::pyramid;
 
 /// A pyramid of planes with their defined masks, finest first.
 pub(super) type Pyramid = Vec<(Gray, Option<Vec<bool>>)>;

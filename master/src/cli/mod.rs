@@ -286,15 +286,7 @@ pub fn parse_args() -> Cli {
     texsyn_proto::cli::parse_or_exit("texsyn")
 }
 
-/// An error message as one line (line breaks of nested causes become spaces).
-pub fn one_line(message: &str) -> String {
-    message
-        .lines()
-        .map(str::trim)
-        .filter(|l| !l.is_empty())
-        .collect::<Vec<_>>()
-        .join(" ")
-}
+pub use texsyn_proto::cli::one_line;
 
 use texsyn_proto::cli::check_seconds;
 pub use texsyn_proto::cli::parse_seconds;

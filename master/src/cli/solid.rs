@@ -66,10 +66,10 @@ pub struct SolidArgs {
     /// preview. Repeat for more maps.
     #[arg(long = "replay", value_name = "MAP | [M:]AXES=MAP,...")]
     pub replay: Vec<String>,
-    /// Most memory the run may take, in GiB (default: what the system has
-    /// available now).
-    #[arg(long, value_name = "GIB")]
-    pub max_memory: Option<f64>,
+    /// Most memory the run may take, in MiB (default: what this machine and
+    /// its cgroup can still give).
+    #[arg(long, value_name = "MB", value_parser = clap::value_parser!(u64).range(1..))]
+    pub max_memory: Option<u64>,
     /// Threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -247,16 +247,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
             r.name
         );
     }
-    let max_memory = match a.max_memory {
-        None => None,
-        Some(g) => {
-            ensure!(
-                g > 0.0 && g.is_finite(),
-                "--max-memory {g} must be a positive number of GiB"
-            );
-            Some((g * (1u64 << 30) as f64) as u64)
-        }
-    };
+    let budget = crate::budget::Budget::of_mib(a.max_memory);
     let materials = specs.iter().map(|v| v.material).max().unwrap_or(0) + 1;
     let ramp = a
         .ramp
@@ -400,7 +391,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
     let settings = SolidSettings {
         base,
         histogram: a.histogram,
-        memory_limit: max_memory,
+        budget,
     };
     let pool = thread_pool(a.threads)?;
     let mut backend = open_backend(&a.cluster)?;

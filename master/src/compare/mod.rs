@@ -28,8 +28,8 @@ use texsyn_engine::{
     Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample, VectorSpace, Weights,
 };
 
+use crate::imaging::colour::luminance;
 use crate::imaging::{ColorImage, Gray};
-use crate::ycbcr::luminance;
 
 /// The scores of B against A.
 #[derive(Clone, Debug, Serialize)]
@@ -319,35 +319,6 @@ fn histograms_distance(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
     s / levels as f64
 }
 
-/// One 5-tap binomial blur and 2× decimation (edges clamped).
-fn reduce(v: &[f64], w: usize, h: usize) -> (Vec<f64>, usize, usize) {
-    const K: [f64; 5] = [1.0, 4.0, 6.0, 4.0, 1.0];
-    let at = |x: isize, y: isize| {
-        let x = x.clamp(0, w as isize - 1) as usize;
-        let y = y.clamp(0, h as isize - 1) as usize;
-        v[y * w + x]
-    };
-    let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
-    let mut out = vec![0.0; nw * nh];
-    for y in 0..nh {
-        for x in 0..nw {
-            let mut s = 0.0;
-            for (j, kj) in K.iter().enumerate() {
-                for (i, ki) in K.iter().enumerate() {
-                    s += ki
-                        * kj
-                        * at(
-                            2 * x as isize + i as isize - 2,
-                            2 * y as isize + j as isize - 2,
-                        );
-                }
-            }
-            out[y * nw + x] = s / 256.0;
-        }
-    }
-    (out, nw, nh)
-}
-
 /// Band-pass levels of a Laplacian pyramid: each level minus its reduced
 /// level brought back up (nearest neighbour).
 fn laplacian_bands(g: &Gray, levels: usize) -> Vec<Vec<f64>> {
@@ -367,7 +338,7 @@ pub(crate) fn laplacian_bands_of(
         if w < 8 || h < 8 {
             break;
         }
-        let (r, rw, _) = reduce(&v, w, h);
+        let (r, rw, _) = crate::pyramid::reduce_f64(&v, w, h);
         let band: Vec<f64> = (0..h)
             .flat_map(|y| (0..w).map(move |x| (x, y)))
             .map(|(x, y)| v[y * w + x] - r[(y / 2) * rw + x / 2])

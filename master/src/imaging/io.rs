@@ -12,7 +12,7 @@ use super::deep::{Channels, DeepImage, Depth, PixelFormat};
 use super::{
     check_size_impl, one_line, ColorImage, Gray, ImageIoError, JPEG_QUALITY, MAX_DECODE_ALLOC,
 };
-use crate::ycbcr::luma;
+use crate::imaging::colour::luma;
 
 fn read_error(path: &Path, e: io::Error) -> ImageIoError {
     match e.kind() {

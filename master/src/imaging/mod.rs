@@ -25,12 +25,13 @@
 //!
 //! This module holds the image types, limits and errors; `io` loads and saves,
 //! `atomic` does the temp-file-then-rename writes. The luminance of an image
-//! ([`luminance`]) comes from [`crate::ycbcr`].
+//! ([`luminance`]) comes from [`crate::imaging::colour`].
 
 use std::path::PathBuf;
 
 pub mod animation;
 mod atomic;
+pub mod colour;
 mod coordmap;
 mod deep;
 mod io;

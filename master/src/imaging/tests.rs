@@ -7,7 +7,7 @@ use std::path::Path;
 
 use super::atomic::write_atomic;
 use super::*;
-use crate::ycbcr::luminance;
+use crate::imaging::colour::luminance;
 use image::{ImageBuffer, Luma, LumaA, Rgb, Rgba};
 
 fn pattern(w: usize, h: usize) -> ColorImage {

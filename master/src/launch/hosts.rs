@@ -114,7 +114,7 @@ pub fn read_hosts_file_launch(
         anyhow::anyhow!(
             "the hosts file {}{line}: {}; it must be a list of [[worker]] entries with address = \"host:port\" and the optional keys token_file, ssh, binary, threads, port, ssh_options",
             path.display(),
-            crate::cli::one_line(e.message())
+            texsyn_proto::cli::one_line(e.message())
         )
     })?;
     if parsed.worker.is_empty() {

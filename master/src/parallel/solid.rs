@@ -114,18 +114,6 @@ pub fn memory_needed(size: [usize; 3], views: usize, materials: usize, dims: usi
     v * (17 * m + 4 * dims as u64 + weights + 6)
 }
 
-/// Bytes of memory the system can give now (`MemAvailable`), when known.
-pub fn memory_available() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib * 1024)
-}
-
-fn gib(bytes: u64) -> f64 {
-    bytes as f64 / (1u64 << 30) as f64
-}
-
 /// Synthesises a solid of `size` voxels from `views`; a solid larger than
 /// the memory limit is refused before any work, naming the memory it needs.
 pub fn synthesize(
@@ -137,7 +125,6 @@ pub fn synthesize(
     progress: SolidProgress,
 ) -> Result<Solid> {
     let s = &settings.base;
-    let memory_limit = settings.memory_limit;
     ensure!(
         settings.histogram.is_finite() && settings.histogram >= 0.0,
         "the histogram matching strength must be 0 or more"
@@ -240,25 +227,17 @@ pub fn synthesize(
     let pca = Pca::fit(&uniq)?;
     let dims = pca.components.len();
     let need = memory_needed(size, views.len(), materials, dims);
-    let limit = memory_limit.or_else(memory_available);
-    if let Some(limit) = limit {
-        ensure!(
-            need <= limit,
-            "a {}×{}×{} solid with {} views needs about {:.1} GiB of memory, but {:.1} GiB {}; \
-             choose a smaller --size",
+    settings.budget.check(
+        &format!(
+            "a {}×{}×{} solid with {} views",
             size[0],
             size[1],
             size[2],
-            views.len(),
-            gib(need),
-            gib(limit),
-            if memory_limit.is_some() {
-                "are allowed (--max-memory)"
-            } else {
-                "are available"
-            }
-        );
-    }
+            views.len()
+        ),
+        need,
+        "choose a smaller --size",
+    )?;
     let m = views.len();
     let mut share = vec![0.0f32; m];
     for (j, v) in views.iter().enumerate() {
@@ -541,9 +520,8 @@ pub struct SolidSettings {
     pub base: ParallelSettings,
     /// Strength of the histogram matching; 0 is the paper's plain method.
     pub histogram: f32,
-    /// The most memory the run may take (the system's available memory
-    /// when `None`): a larger solid is refused before any work.
-    pub memory_limit: Option<u64>,
+    /// The memory the run may take: a larger solid is refused before any work.
+    pub budget: crate::budget::Budget,
 }
 
 /// Default strength of the histogram matching: strong enough that solids
@@ -559,7 +537,7 @@ impl Default for SolidSettings {
                 ..ParallelSettings::default()
             },
             histogram: HISTOGRAM,
-            memory_limit: None,
+            budget: crate::budget::Budget::default(),
         }
     }
 }
@@ -910,7 +888,7 @@ mod tests {
             material: 0,
         }];
         let settings = SolidSettings {
-            memory_limit: Some(1 << 20),
+            budget: crate::budget::Budget { cap: Some(1 << 20) },
             ..SolidSettings::default()
         };
         let mut b = crate::search::LocalSearch::new(texsyn_engine::Engine::default());

@@ -280,45 +280,10 @@ impl ExemplarLevel {
     }
 }
 
-/// A blur of the exemplar for the stack level of step `h`: a box of radius
-/// `h/2`, wrapping, done as a horizontal then a vertical pass of running sums
-/// (each rounded), so its cost does not grow with `h`.
+/// A blur of the exemplar for the stack level of step `h`: a wrapping box
+/// of radius `h/2` ([`crate::filters::box_blur_rgb`]).
 pub(super) fn blurred(img: &ColorImage, h: usize) -> ColorImage {
-    if h <= 1 {
-        return img.clone();
-    }
-    let r = h / 2;
-    let n = (2 * r + 1) as u32;
-    let (w, hh) = (img.width, img.height);
-    // One pass along lines of `len` pixels, `count` lines, pixel (line, i) at
-    // `index(line, i)`.
-    let pass = |src: &[u8], len: usize, count: usize, index: &dyn Fn(usize, usize) -> usize| {
-        let mut out = vec![0u8; src.len()];
-        for line in 0..count {
-            let mut sum = [0u32; 3];
-            for d in 0..n as usize {
-                let i = index(line, (d + len * (r / len + 1) - r) % len);
-                for c in 0..3 {
-                    sum[c] += u32::from(src[i * 3 + c]);
-                }
-            }
-            for i in 0..len {
-                let o = index(line, i);
-                for c in 0..3 {
-                    out[o * 3 + c] = ((sum[c] + n / 2) / n) as u8;
-                }
-                let leave = index(line, (i + len * (r / len + 1) - r) % len);
-                let enter = index(line, (i + r + 1) % len);
-                for c in 0..3 {
-                    sum[c] = sum[c] + u32::from(src[enter * 3 + c]) - u32::from(src[leave * 3 + c]);
-                }
-            }
-        }
-        out
-    };
-    let rows = pass(&img.rgb, w, hh, &|line, i| line * w + i);
-    let cols = pass(&rows, hh, w, &|line, i| i * w + line);
-    ColorImage::from_vec(w, hh, cols)
+    crate::filters::box_blur_rgb(img, if h <= 1 { 0 } else { h / 2 })
 }
 
 /// Synthesises a `width`×`height` image from one exemplar: the morph of one

@@ -18,8 +18,8 @@
 use serde::{Deserialize, Serialize};
 
 use crate::compare::{frequency as freq, laplacian_bands_of, weighted_spectrum};
+use crate::imaging::colour::luminance;
 use crate::imaging::ColorImage;
-use crate::ycbcr::luminance;
 
 const RADIAL: usize = 16;
 const ANGULAR: usize = 12;

@@ -32,8 +32,9 @@ use super::catalogue::{selected, unit_distance, Catalogue};
 use super::descriptor::Structure;
 use super::shaders::{colourise, Kind, Shader, COLOUR_PARAMS};
 use crate::compare::Descriptors;
+use crate::filters::box_blur_lines;
+use crate::imaging::colour::luminance;
 use crate::imaging::ColorImage;
-use crate::ycbcr::luminance;
 
 /// A shader with parameters and colours: a texture at any resolution.
 #[derive(Clone, Debug)]
@@ -400,8 +401,8 @@ pub fn blurred_spectra(d: &Descriptors) -> Vec<Vec<f64>> {
             let r = (((4.0 * sigma * sigma + 1.0).sqrt() - 1.0) / 2.0).round() as usize;
             let mut out = low.clone();
             for _ in 0..3 {
-                box_blur(&mut out, w, h, r, 1, w);
-                box_blur(&mut out, h, w, r, w, 1);
+                box_blur_lines(&mut out, w, h, r, 1, w);
+                box_blur_lines(&mut out, h, w, r, w, 1);
             }
             let norm = out.iter().map(|x| x * x).sum::<f64>().sqrt();
             if norm > 0.0 {
@@ -410,27 +411,6 @@ pub fn blurred_spectra(d: &Descriptors) -> Vec<Vec<f64>> {
             out
         })
         .collect()
-}
-
-/// A wrapping box blur of radius `r` along lines of `n` values `step`
-/// apart; `lines` such lines start `stride` apart.
-fn box_blur(v: &mut [f64], n: usize, lines: usize, r: usize, step: usize, stride: usize) {
-    if r == 0 || n == 0 {
-        return;
-    }
-    let width = (2 * r + 1) as f64;
-    let mut line = vec![0.0; n];
-    for l in 0..lines {
-        let at = |k: usize| l * stride + k * step;
-        for (k, x) in line.iter_mut().enumerate() {
-            *x = v[at(k)];
-        }
-        let mut sum: f64 = (0..=2 * r).map(|j| line[(j + n - r % n) % n]).sum();
-        for k in 0..n {
-            v[at(k)] = sum / width;
-            sum += line[(k + r + 1) % n] - line[(k + n - r % n) % n];
-        }
-    }
 }
 
 /// One evaluated parameter vector.
@@ -890,7 +870,7 @@ pub fn draw(shader: &'static Shader, seed: u64) -> Pattern {
         let c: [[f64; 3]; 2] = std::array::from_fn(|_| {
             std::array::from_fn(|_| f64::from(rng.random_range(0u8..=255)))
         });
-        let y = |c: &[f64; 3]| 0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2];
+        let y = crate::imaging::colour::luma_f64;
         if (y(&c[0]) - y(&c[1])).abs() >= 60.0 {
             return Pattern {
                 shader,
@@ -953,9 +933,9 @@ mod tests {
         let v: Vec<f64> = (0..w * h).map(|i| ((i * 37) % 11) as f64).collect();
         for r in 0..4 {
             let mut rows = v.clone();
-            box_blur(&mut rows, w, h, r, 1, w);
+            crate::filters::box_blur_lines(&mut rows, w, h, r, 1, w);
             let mut cols = v.clone();
-            box_blur(&mut cols, h, w, r, w, 1);
+            crate::filters::box_blur_lines(&mut cols, h, w, r, w, 1);
             for y in 0..h {
                 for x in 0..w {
                     let n = (2 * r + 1) as f64;

@@ -130,7 +130,7 @@ fn lerp_colours(a: &[[f64; 3]; 2], b: &[[f64; 3]; 2], t: f64) -> [[f64; 3]; 2] {
 
 /// Whether the colour at pattern value 0 is the darker.
 fn dark_low(c: &[[f64; 3]; 2]) -> bool {
-    let y = |c: &[f64; 3]| 0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2];
+    let y = crate::imaging::colour::luma_f64;
     y(&c[0]) <= y(&c[1])
 }
 

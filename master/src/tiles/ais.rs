@@ -20,10 +20,10 @@ use texsyn_engine::{Geometry, Metric, Params, Plane, Positions, QueryBatch, Samp
 
 use super::graphcut;
 use super::omega::OmegaSet;
-use crate::block::pyramid::downsample;
+use crate::imaging::colour::luminance;
 use crate::imaging::{ColorImage, Gray};
+use crate::pyramid::downsample;
 use crate::search::{LevelData, SearchBackend};
-use crate::ycbcr::luminance;
 
 /// The immune search's parameters; the defaults are the paper's (§4.4).
 #[derive(Clone, Copy, Debug, Serialize)]

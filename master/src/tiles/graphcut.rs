@@ -5,7 +5,7 @@
 
 use crate::imaging::ColorImage;
 
-use super::path::rgb_distance;
+use crate::seams::rgb_distance;
 
 /// A minimum s–t cut: its value and, per node, whether it is on the source's
 /// side. `edges` are directed `(from, to, capacity)`; give both directions for

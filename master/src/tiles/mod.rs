@@ -6,7 +6,6 @@
 pub mod ais;
 pub mod graphcut;
 pub mod omega;
-pub mod path;
 pub mod stitch;
 pub mod tileset;
 

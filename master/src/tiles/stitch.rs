@@ -3,9 +3,9 @@
 //!
 //! A [`Belt`] names the overlap in image coordinates and on which side R1 (the
 //! region laid over) lies; [`stitch`] reads both regions through it in the
-//! canonical frame of [`super::path`], finds the path and writes the result.
+//! canonical frame of [`crate::seams`], finds the path and writes the result.
 
-use super::path::{self, ErrorMap, Oscillating, Path};
+use crate::seams::{self as path, ErrorMap, Oscillating, Path};
 
 use crate::imaging::ColorImage;
 

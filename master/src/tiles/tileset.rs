@@ -6,9 +6,9 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::path::{rgb_distance, Oscillating};
 use super::stitch::{self, Belt, Cut, Side, StitchSettings};
 use crate::imaging::ColorImage;
+use crate::seams::{rgb_distance, Oscillating};
 
 /// A rectangle of an image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]

@@ -70,7 +70,7 @@ pub fn run(sample: &ColorImage, mode: &Mode, cfg: &Config, threads: usize) -> te
 /// is the step between columns x and x+1, the last one is the wrap-around edge
 /// (column w-1 to column 0). `transpose` does the same for rows.
 pub fn column_steps(img: &ColorImage, transpose: bool) -> Vec<f64> {
-    let g = texsyn::ycbcr::luminance(img);
+    let g = texsyn::imaging::colour::luminance(img);
     let (w, h) = if transpose {
         (g.height, g.width)
     } else {

@@ -109,6 +109,36 @@ pub fn downsample(g: &Gray, defined: Option<&[bool]>, wrap: bool) -> Gray {
     out
 }
 
+/// One pyramid step on a floating-point plane: the same 5-tap binomial blur
+/// and 2× decimation, edges clamped (the measures of `texsyn compare`).
+pub fn reduce_f64(v: &[f64], w: usize, h: usize) -> (Vec<f64>, usize, usize) {
+    const K: [f64; 5] = [1.0, 4.0, 6.0, 4.0, 1.0];
+    let at = |x: isize, y: isize| {
+        let x = x.clamp(0, w as isize - 1) as usize;
+        let y = y.clamp(0, h as isize - 1) as usize;
+        v[y * w + x]
+    };
+    let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+    let mut out = vec![0.0; nw * nh];
+    for y in 0..nh {
+        for x in 0..nw {
+            let mut s = 0.0;
+            for (j, kj) in K.iter().enumerate() {
+                for (i, ki) in K.iter().enumerate() {
+                    s += ki
+                        * kj
+                        * at(
+                            2 * x as isize + i as isize - 2,
+                            2 * y as isize + j as isize - 2,
+                        );
+                }
+            }
+            out[y * nw + x] = s / 256.0;
+        }
+    }
+    (out, nw, nh)
+}
+
 /// Defined mask of the next coarser level: a coarse pixel is defined only if
 /// all of its children (the 2×2 block, clipped at the edge) are (ARCHITECTURE §3.1).
 pub fn downsample_mask(defined: &[bool], w: usize, h: usize) -> Vec<bool> {

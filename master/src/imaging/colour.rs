@@ -23,6 +23,11 @@ pub fn luma(r: u8, g: u8, b: u8) -> u8 {
     ((299 * r as u32 + 587 * g as u32 + 114 * b as u32 + 500) / 1000) as u8
 }
 
+/// BT.601 luma of an RGB colour held as floating point (0–255), unrounded.
+pub fn luma_f64(c: &[f64; 3]) -> f64 {
+    0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]
+}
+
 /// The search luminance plane of an image ([`luma`] per pixel).
 pub fn luminance(img: &ColorImage) -> Gray {
     let data = img

@@ -1,0 +1,105 @@
+//! Wrapping box filters shared by the methods: the running-sum box blur of
+//! the coordinate method's stack levels (Manke–Wünsche §3) and the blurred
+//! spectra of procedural matching (Bourque–Dudek §3.2).
+
+use std::ops::{Add, Sub};
+
+use crate::imaging::ColorImage;
+
+/// The sums of every window of radius `r` along a wrapped line of `n`
+/// values: `emit(k, Σ value(k − r ..= k + r))` for each `k`. The first sum
+/// adds the `2r + 1` values in order; each next one adds the entering value
+/// minus the leaving one, so the cost does not grow with `r`.
+pub fn window_sums<S>(
+    n: usize,
+    r: usize,
+    value: impl Fn(usize) -> S,
+    mut emit: impl FnMut(usize, S),
+) where
+    S: Copy + std::iter::Sum + Add<Output = S> + Sub<Output = S>,
+{
+    if n == 0 {
+        return;
+    }
+    // (k − r) mod n without going below zero.
+    let back = |k: usize| (k + n * (r / n + 1) - r) % n;
+    let mut sum: S = (0..=2 * r).map(|j| value(back(j))).sum();
+    for k in 0..n {
+        emit(k, sum);
+        sum = sum + (value((k + r + 1) % n) - value(back(k)));
+    }
+}
+
+/// A wrapping box blur of radius `r` of an RGB image: a horizontal then a
+/// vertical pass of running sums, each pass rounded to bytes.
+pub fn box_blur_rgb(img: &ColorImage, r: usize) -> ColorImage {
+    if r == 0 {
+        return img.clone();
+    }
+    let n = (2 * r + 1) as i64;
+    let (w, h) = (img.width, img.height);
+    // One pass along `count` lines of `len` pixels, pixel (line, i) at `index(line, i)`.
+    let pass = |src: &[u8], len: usize, count: usize, index: &dyn Fn(usize, usize) -> usize| {
+        let mut out = vec![0u8; src.len()];
+        for line in 0..count {
+            for c in 0..3 {
+                let value = |i: usize| i64::from(src[index(line, i) * 3 + c]);
+                window_sums(len, r, value, |i, sum| {
+                    out[index(line, i) * 3 + c] = ((sum + n / 2) / n) as u8;
+                });
+            }
+        }
+        out
+    };
+    let rows = pass(&img.rgb, w, h, &|line, i| line * w + i);
+    let cols = pass(&rows, h, w, &|line, i| i * w + line);
+    ColorImage::from_vec(w, h, cols)
+}
+
+/// A wrapping box blur (the mean over `2r + 1` values) of radius `r` along
+/// `lines` lines of `n` values `step` apart, the lines `stride` apart, in place.
+pub fn box_blur_lines(v: &mut [f64], n: usize, lines: usize, r: usize, step: usize, stride: usize) {
+    if r == 0 || n == 0 {
+        return;
+    }
+    let width = (2 * r + 1) as f64;
+    let mut line = vec![0.0; n];
+    for l in 0..lines {
+        let at = |k: usize| l * stride + k * step;
+        for (k, x) in line.iter_mut().enumerate() {
+            *x = v[at(k)];
+        }
+        window_sums(n, r, |k| line[k], |k, sum| v[at(k)] = sum / width);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn window_sums_match_a_direct_sum() {
+        for n in 1..9usize {
+            for r in 0..12usize {
+                let vals: Vec<i64> = (0..n as i64).map(|i| i * i - 3 * i + 7).collect();
+                let mut got = vec![0i64; n];
+                window_sums(n, r, |k| vals[k], |k, s| got[k] = s);
+                for (k, g) in got.iter().enumerate() {
+                    let direct: i64 = (0..=2 * r)
+                        .map(|j| vals[((k + j) as i64 - r as i64).rem_euclid(n as i64) as usize])
+                        .sum();
+                    assert_eq!(*g, direct, "n {n} r {r} k {k}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn box_blur_of_a_constant_is_the_constant() {
+        let img = ColorImage::from_vec(5, 3, [10u8, 200, 33].repeat(15));
+        assert_eq!(box_blur_rgb(&img, 4).rgb, img.rgb);
+        let mut v = vec![2.5; 12];
+        box_blur_lines(&mut v, 4, 3, 2, 1, 4);
+        assert!(v.iter().all(|x| (x - 2.5).abs() < 1e-12));
+    }
+}
