@@ -66,7 +66,10 @@ mod tests {
         assert!(b.check("x", 10 << 20, "fix").is_ok());
         let e = b.check("a 9×9 thing", (10 << 20) + 1, "use a smaller --size");
         let msg = e.unwrap_err().to_string();
-        assert!(msg.contains("a 9×9 thing") && msg.contains("--max-memory"), "{msg}");
+        assert!(
+            msg.contains("a 9×9 thing") && msg.contains("--max-memory"),
+            "{msg}"
+        );
         assert!(msg.contains("use a smaller --size"), "{msg}");
         assert_eq!(human(3 << 30), "3.0 GiB");
         assert_eq!(human(5 << 19), "2.5 MiB");

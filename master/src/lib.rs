@@ -26,6 +26,7 @@ pub mod imaging;
 pub mod launch;
 pub mod parallel;
 pub mod procedural;
+pub mod progress;
 pub mod pyramid;
 pub mod seams;
 pub mod search;

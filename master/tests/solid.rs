@@ -349,7 +349,7 @@ fn bad_input_is_refused_with_the_fix_named() {
             vec!["--size", "64", "--max-memory", "1"],
             "are allowed (--max-memory)",
         ),
-        (vec!["--size", "32x32"], "is not N or XxYxZ"),
+        (vec!["--size", "32x32"], "has 2 numbers"),
         (vec!["--size", "32", "--view", "w=a.png"], "is not an axis"),
         (vec!["--size", "32", "--view", &x2], "two views across x"),
         (

@@ -102,7 +102,16 @@ pub(super) fn fill_level(
     let (b, n) = (ctx.cfg.block, ctx.geometry.n);
     let grid = Grid::new(canvas, b);
     let mut queue = initial_queue(canvas, &grid, n, ctx.scanline);
-    progress.level_start(ctx.level, ctx.levels, queue.len() as u64);
+    progress.start(
+        &format!(
+            "level {} ({}/{})",
+            ctx.level,
+            ctx.levels - ctx.level,
+            ctx.levels
+        ),
+        queue.len() as u64,
+        "blocks",
+    );
     let shape = if ctx.scanline {
         Shape::Causal { block: b }
     } else {
@@ -185,7 +194,8 @@ pub(super) fn fill_level(
         stats.copy_seconds += t.elapsed().as_secs_f64();
         progress.advance(chosen.len() as u64);
     }
-    progress.level_end(ctx.level);
+    progress.finish();
+    tracing::info!(level = ctx.level, "level done");
     Ok(stats)
 }
 

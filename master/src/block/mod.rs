@@ -34,16 +34,7 @@ pub mod queue;
 pub use config::{Config, FillSource, Mode, Position, Stitch, SynthMethod, MAX_CANVAS_PIXELS};
 pub use plan::resolve_levels;
 
-/// Receives progress; the CLI draws a bar per level.
-pub trait Progress: Sync {
-    fn level_start(&self, _level: usize, _levels: usize, _blocks: u64) {}
-    fn advance(&self, _blocks: u64) {}
-    fn level_end(&self, _level: usize) {}
-}
-
-/// No progress output.
-pub struct Silent;
-impl Progress for Silent {}
+pub use crate::progress::{Progress, Silent};
 
 /// Figures of one level for the run report.
 #[derive(Debug, Clone, serde::Serialize)]

@@ -43,7 +43,7 @@ pub fn run(a: &CompareArgs) -> Result<()> {
             let (ia, ib) = (imaging::load_color(&a.a)?, imaging::load_color(b)?);
             let grid = match &a.tile {
                 Some(t) => {
-                    let (tile_width, tile_height) = super::tiles::parse_pair(t, "--tile")?;
+                    let (tile_width, tile_height) = super::args::parse_pair(t, "--tile")?;
                     Some(Grid {
                         tile_width,
                         tile_height,

@@ -6,19 +6,20 @@ use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use indicatif::{ProgressBar, ProgressStyle};
 use texsyn_engine::{Engine, Metric, Weights};
 
-use crate::block::{self, Config, FillSource, Mode, Position, Progress, SynthMethod};
+use crate::block::{self, Config, FillSource, Mode, Position, SynthMethod};
 use crate::imaging::{self, ColorImage, DeepImage, PixelFormat};
 use crate::search::lbg::LbgSearch;
 use crate::search::{LocalSearch, Plan, PlannedSearch};
 pub use cluster::{run_status, ClusterArgs, ClusterSetup, StatusArgs};
 
+mod args;
 mod cluster;
 mod compare;
 mod parallel;
-mod paths;
+pub mod progress;
+
 mod solid;
 mod tiles;
 pub use parallel::{MorphArgs, ParallelArgs, ReplayArgs};
@@ -286,6 +287,7 @@ pub fn parse_args() -> Cli {
     texsyn_proto::cli::parse_or_exit("texsyn")
 }
 
+pub use args::{parse_dims, parse_size};
 pub use texsyn_proto::cli::one_line;
 
 use texsyn_proto::cli::check_seconds;
@@ -297,29 +299,6 @@ pub fn seconds(flag: &str, v: f64, min: f64, max: f64) -> Result<Duration> {
     let v =
         check_seconds(v, &v.to_string(), min, max).map_err(|e| anyhow::anyhow!("{flag}: {e}"))?;
     Duration::try_from_secs_f64(v).with_context(|| format!("{flag} {v} is not a duration"))
-}
-
-/// Parses `WxH`.
-pub fn parse_size(s: &str) -> Result<(usize, usize)> {
-    let (w, h) = s
-        .to_ascii_lowercase()
-        .split_once('x')
-        .map(|(a, b)| (a.trim().to_string(), b.trim().to_string()))
-        .with_context(|| format!("size '{s}' is not WxH, e.g. --size 512x512"))?;
-    let w: usize = w
-        .parse()
-        .with_context(|| format!("width '{w}' in --size '{s}' is not a number"))?;
-    let h: usize = h
-        .parse()
-        .with_context(|| format!("height '{h}' in --size '{s}' is not a number"))?;
-    ensure!(w > 0 && h > 0, "size {w}x{h} is empty; give both sides ≥ 1");
-    ensure!(
-        w.saturating_mul(h) <= block::MAX_CANVAS_PIXELS && w.max(h) <= imaging::MAX_SIDE,
-        "size {w}x{h} is too large: the limit is {} pixels and {} per side; use a smaller --size",
-        block::MAX_CANVAS_PIXELS,
-        imaging::MAX_SIDE
-    );
-    Ok((w, h))
 }
 
 fn parse_weights(s: &str) -> Result<Weights> {
@@ -393,41 +372,18 @@ impl TryFrom<&Common> for Config {
     }
 }
 
-/// Progress bars per level (hidden with --quiet or when stderr is not a terminal).
-struct Bars {
-    bar: std::sync::Mutex<Option<ProgressBar>>,
-    quiet: bool,
-}
-
-impl Progress for Bars {
-    fn level_start(&self, level: usize, levels: usize, blocks: u64) {
-        if self.quiet {
-            return;
-        }
-        let bar = ProgressBar::new(blocks);
-        bar.set_style(
-            ProgressStyle::with_template(
-                "level {msg} [{bar:40}] {pos}/{len} blocks {elapsed_precise} eta {eta}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-        );
-        bar.set_message(format!("{level} ({}/{levels})", levels - level));
-        *self.bar.lock().unwrap_or_else(|e| e.into_inner()) = Some(bar);
+/// Rejects outputs of `common` that name the same file, an input of
+/// `inputs` (flag, path) or a level file of `--levels-dir`.
+fn check_distinct(inputs: &[(&str, &Path)], common: &Common) -> Result<()> {
+    let mut outputs: Vec<(&str, &Path)> = vec![("-o", &common.output)];
+    if let Some(p) = &common.copy_map {
+        crate::imaging::check_coord_map_path(p)?;
+        outputs.push(("--copy-map", p));
     }
-
-    fn advance(&self, blocks: u64) {
-        if let Some(b) = self.bar.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
-            b.inc(blocks);
-        }
+    if let Some(p) = &common.report {
+        outputs.push(("--report", p));
     }
-
-    fn level_end(&self, level: usize) {
-        if let Some(b) = self.bar.lock().unwrap_or_else(|e| e.into_inner()).take() {
-            b.finish_and_clear();
-        }
-        tracing::info!(level, "level done");
-    }
+    crate::imaging::paths::check_files(&outputs, inputs, common.levels_dir.as_deref())
 }
 
 pub(crate) fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
@@ -535,10 +491,7 @@ fn run_synthesis(
     copies.check(common)?;
     let engine = Engine::with_kernel_name(&common.kernel)?;
     let pool = thread_pool(common.threads)?;
-    let bars = Bars {
-        bar: std::sync::Mutex::new(None),
-        quiet: common.quiet,
-    };
+    let bars = progress::Bars::new(common.quiet);
     let plan: Plan = common.search.parse()?;
     let lbg = LbgSearch::new(engine, common.lbg_probes, common.lbg_threshold, cfg.seed)?;
     // No level can have more LBG seeds than ⌈√(sample pixels)⌉: refuse impossible probes now.
@@ -598,7 +551,7 @@ pub fn run(cli: Cli) -> Result<()> {
             inputs.extend(a.mask.as_deref().map(|m| ("--mask", m)));
             inputs.extend(a.source.as_deref().map(|m| ("--source", m)));
             inputs.extend(a.source_mask.as_deref().map(|m| ("--source-mask", m)));
-            paths::check_distinct(&inputs, &a.common)?;
+            check_distinct(&inputs, &a.common)?;
             let cfg = Config::try_from(&a.common)?;
             let photo = imaging::load_image(&a.input)?;
             let holes = match &a.mask {
@@ -643,7 +596,7 @@ pub fn run(cli: Cli) -> Result<()> {
             run_synthesis(&img, mode, cfg, &a.common, copies)
         }
         Command::Extend(a) => {
-            paths::check_distinct(&[("input", &a.input)], &a.common)?;
+            check_distinct(&[("input", &a.input)], &a.common)?;
             let cfg = Config::try_from(&a.common)?;
             let (width, height) = parse_size(&a.size)?;
             let position = parse_position(&a.position)?;
@@ -661,7 +614,7 @@ pub fn run(cli: Cli) -> Result<()> {
             )
         }
         Command::Synth(a) if matches!(a.method, MethodArg::Parallel) => {
-            paths::check_distinct(&[("input", &a.input)], &a.common)?;
+            check_distinct(&[("input", &a.input)], &a.common)?;
             let c = &a.common;
             ensure!(
                 a.level_samples.is_empty()
@@ -700,7 +653,7 @@ pub fn run(cli: Cli) -> Result<()> {
             }
             let mut inputs = vec![("input", a.input.as_path())];
             inputs.extend(level_files.iter().map(|&(_, f)| ("--level-sample", f)));
-            paths::check_distinct(&inputs, &a.common)?;
+            check_distinct(&inputs, &a.common)?;
             let mut deep = imaging::load_image(&a.input)?;
             let mut level_samples = Vec::new();
             for (l, file) in level_files {

@@ -236,7 +236,7 @@ pub fn run_morph(a: &MorphArgs) -> Result<()> {
         .map(|p| ("exemplar", p.as_path()))
         .chain(a.weight_maps.iter().map(|p| ("weight map", p.as_path())))
         .collect();
-    super::paths::check_files(&outputs, &inputs, None)?;
+    crate::imaging::paths::check_files(&outputs, &inputs, None)?;
     let images = a
         .exemplars
         .iter()

@@ -8,7 +8,8 @@ use anyhow::{ensure, Context, Result};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::{parse_size, paths, thread_pool};
+use super::{parse_size, thread_pool};
+use crate::imaging::paths;
 use crate::imaging::{self, animation, ColorImage};
 use crate::procedural::catalogue::{self, BuildSettings, Catalogue};
 use crate::procedural::matching::{match_texture, MatchResult, MatchSettings, Pattern};

@@ -130,19 +130,11 @@ fn parse_view(s: &str, flag: &str) -> Result<Vec<ViewSpec>> {
 
 /// Parses `N` or `XxYxZ`.
 pub fn parse_size3(s: &str) -> Result<[usize; 3]> {
-    let parts: Vec<&str> = s.split(['x', 'X']).collect();
-    let nums = parts
-        .iter()
-        .map(|p| {
-            p.trim()
-                .parse::<usize>()
-                .with_context(|| format!("--size '{s}' is not N or XxYxZ, e.g. --size 128"))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let size = match nums[..] {
-        [n] => [n; 3],
-        [x, y, z] => [x, y, z],
-        _ => bail!("--size '{s}' is not N or XxYxZ, e.g. --size 128 or --size 128x128x64"),
+    let d = super::parse_dims(s, "--size", &[1, 3], "128 or --size 128x128x64")?;
+    let size = if d.len() == 1 {
+        [d[0]; 3]
+    } else {
+        [d[0], d[1], d[2]]
     };
     ensure!(
         size.iter().all(|&n| (1..=MAX_EDGE).contains(&n)),
@@ -306,7 +298,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
     for r in &replays {
         in_refs.extend(r.paths.iter().map(|p| ("--replay", p.as_path())));
     }
-    super::paths::check_files(&out_refs, &in_refs, None)?;
+    crate::imaging::paths::check_files(&out_refs, &in_refs, None)?;
 
     // Inputs: each distinct file read once.
     let mut files: Vec<(PathBuf, ColorImage)> = Vec::new();

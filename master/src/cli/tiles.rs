@@ -132,20 +132,6 @@ struct TileEntry<'a> {
     derived: Option<&'a tiles::tileset::DerivedTile>,
 }
 
-pub(super) fn parse_pair(s: &str, what: &str) -> Result<(usize, usize)> {
-    let (a, b) = s
-        .split_once(['x', 'X'])
-        .with_context(|| format!("{what} '{s}' is not WxH, e.g. 4x4"))?;
-    let p = |v: &str| {
-        v.trim()
-            .parse::<usize>()
-            .ok()
-            .filter(|&n| n > 0)
-            .with_context(|| format!("{what} '{s}': '{v}' is not a positive number"))
-    };
-    Ok((p(a)?, p(b)?))
-}
-
 pub fn run(cmd: TilesCommand) -> Result<()> {
     match cmd {
         TilesCommand::Make(a) => make(&a),
@@ -555,7 +541,7 @@ fn assemble(a: &AssembleArgs) -> Result<()> {
         imaging::check_output_size(&a.output, w, h)
     };
     if a.index.is_none() {
-        let (cols, rows) = parse_pair(&a.grid, "--grid")?;
+        let (cols, rows) = super::args::parse_pair(&a.grid, "--grid")?;
         fits(cols, rows, "--grid")?;
     }
     if let Some(o) = &omega {
@@ -570,14 +556,14 @@ fn assemble(a: &AssembleArgs) -> Result<()> {
     let index = match (&a.index, &omega) {
         (Some(p), _) => read_index(p)?,
         (None, Some(o)) => {
-            let (cols, rows) = parse_pair(&a.grid, "--grid")?;
+            let (cols, rows) = super::args::parse_pair(&a.grid, "--grid")?;
             tiles::omega::scan_line_tiling(o, cols, rows, a.seed)?
                 .into_iter()
                 .map(|r| r.into_iter().map(|k| k + 1).collect())
                 .collect()
         }
         (None, None) => {
-            let (cols, rows) = parse_pair(&a.grid, "--grid")?;
+            let (cols, rows) = super::args::parse_pair(&a.grid, "--grid")?;
             tiles::random_index(set.len(), cols, rows, a.seed)
         }
     };

@@ -35,6 +35,8 @@ pub mod colour;
 mod coordmap;
 mod deep;
 mod io;
+mod outdir;
+pub mod paths;
 #[cfg(test)]
 mod tests;
 pub mod volume;
@@ -46,6 +48,7 @@ pub use io::{
     check_output_format, check_output_size, check_regular, check_writable, load_alpha_mask,
     load_color, load_image, load_mask, read_regular, save_bytes, save_color, save_gray, save_image,
 };
+pub use outdir::{check_output_dir, OutputDir, MARKER as OUTPUT_MARKER};
 
 /// Largest number of pixels of an input image or canvas (64 Mi pixels).
 pub const MAX_PIXELS: usize = 64 * 1024 * 1024;

@@ -1,5 +1,6 @@
 //! Output paths checked before any work: every output is a different file,
 //! none is an input, and no output lands on a `--levels-dir` level file.
+//! Shared by every command.
 //!
 //! Files need not exist yet, so a path is compared as the canonical form of
 //! its longest existing ancestor plus the rest ([`place`]); an input is also
@@ -10,10 +11,8 @@ use std::path::{Component, Path, PathBuf};
 
 use anyhow::{bail, Result};
 
-use super::Common;
-
 /// `p` with its longest existing ancestor canonicalised and the rest kept.
-fn resolve(p: &Path) -> PathBuf {
+pub fn resolve(p: &Path) -> PathBuf {
     let mut rest = Vec::new();
     let mut cur = p;
     loop {
@@ -46,7 +45,7 @@ fn resolve(p: &Path) -> PathBuf {
 
 /// Where a file named by `p` goes: its resolved directory plus its name (the
 /// directory entry itself, not what a symlink there points to).
-fn place(p: &Path) -> PathBuf {
+pub fn place(p: &Path) -> PathBuf {
     match (p.parent(), p.file_name()) {
         (Some(dir), Some(name)) => resolve(dir).join(name),
         _ => resolve(p),
@@ -61,23 +60,9 @@ fn is_level_file(name: &OsStr) -> bool {
         .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
 }
 
-/// Rejects outputs of `common` that name the same file, an input of
-/// `inputs` (flag, path) or a level file of `--levels-dir`.
-pub(super) fn check_distinct(inputs: &[(&str, &Path)], common: &Common) -> Result<()> {
-    let mut outputs: Vec<(&str, &Path)> = vec![("-o", &common.output)];
-    if let Some(p) = &common.copy_map {
-        crate::imaging::check_coord_map_path(p)?;
-        outputs.push(("--copy-map", p));
-    }
-    if let Some(p) = &common.report {
-        outputs.push(("--report", p));
-    }
-    check_files(&outputs, inputs, common.levels_dir.as_deref())
-}
-
 /// Rejects `outputs` (flag, path) that name the same file or an input of
 /// `inputs`, or a level file of `levels_dir`.
-pub(super) fn check_files(
+pub fn check_files(
     outputs: &[(&str, &Path)],
     inputs: &[(&str, &Path)],
     levels_dir: Option<&Path>,
