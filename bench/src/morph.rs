@@ -79,7 +79,15 @@ pub fn run(a: &MorphArgs) -> Result<()> {
             let t = Instant::now();
             let mut backend = LocalSearch::new(Engine::default());
             let out = pool.install(|| {
-                synth::morph(&refs, &maps, n, n, &settings(nb), &mut backend, &|_, _| {})
+                synth::morph(
+                    &refs,
+                    &maps,
+                    n,
+                    n,
+                    &settings(nb),
+                    &mut backend,
+                    &texsyn::progress::Silent,
+                )
             })?;
             best = best.min(t.elapsed().as_secs_f64());
             a.run.save(&format!("morph_{name}.png"), &out.image)?;
@@ -114,7 +122,14 @@ pub fn run(a: &MorphArgs) -> Result<()> {
             let t = Instant::now();
             let mut backend = LocalSearch::new(Engine::default());
             let out = pool.install(|| {
-                synth::synthesize(&sample, m, m, &settings(nb), &mut backend, &|_, _| {})
+                synth::synthesize(
+                    &sample,
+                    m,
+                    m,
+                    &settings(nb),
+                    &mut backend,
+                    &texsyn::progress::Silent,
+                )
             })?;
             outs.push((label, out.image, t.elapsed().as_secs_f64()));
         }

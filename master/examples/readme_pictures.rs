@@ -175,7 +175,7 @@ fn main() -> Result<()> {
         let t = std::time::Instant::now();
         let mut backend = LocalSearch::new(Engine::default());
         let out =
-            parallel::synth::morph(&[&a, &b], &maps, w, h, &settings, &mut backend, &|_, _| {})?;
+            parallel::synth::morph(&[&a, &b], &maps, w, h, &settings, &mut backend, &texsyn::progress::Silent)?;
         println!("  {:.2} s", t.elapsed().as_secs_f64());
         imaging::save_color(
             &docs.join("morph.png"),
@@ -199,7 +199,7 @@ fn main() -> Result<()> {
                 ..ParallelSettings::default()
             },
             &mut backend,
-            &|l, n| println!("  level {}/{n}", l + 1),
+            &texsyn::progress::Silent,
         )?;
         println!("  {:.2} s", t.elapsed().as_secs_f64());
         let mut row = vec![out.image];
@@ -234,7 +234,7 @@ fn main() -> Result<()> {
             [128; 3],
             &solid::SolidSettings::default(),
             &mut backend,
-            &|_, _, _, _| {},
+            &texsyn::progress::Silent,
         )?;
         println!("  {:.2} s", t.elapsed().as_secs_f64());
         let v = texsyn::imaging::volume::Volume::new(out.size, 3, out.colour)?;

@@ -62,15 +62,7 @@ const WORKER_TIMEOUT: (f64, f64) = (0.01, 3600.0);
 /// Range of `cluster status --timeout`, in seconds.
 const STATUS_TIMEOUT: (f64, f64) = (0.1, 600.0);
 
-/// The cluster of one run: what to connect to, and the local workers started
-/// for it (killed when this is dropped; drop the search backend first).
-#[derive(Debug)]
-pub struct ClusterSetup {
-    pub options: ClusterOptions,
-    pub local: Option<LocalWorkers>,
-    /// Workers launched over ssh (`--launch`), stopped when this is dropped.
-    pub ssh: Option<SshWorkers>,
-}
+pub use crate::launch::ClusterSetup;
 
 impl ClusterArgs {
     /// True when any worker source is given.

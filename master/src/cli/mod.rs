@@ -6,15 +6,15 @@ use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use texsyn_engine::{Engine, Metric, Weights};
+use texsyn_engine::{Metric, Weights};
 
 use crate::block::{self, Config, FillSource, Mode, Position, SynthMethod};
 use crate::imaging::{self, ColorImage, DeepImage, PixelFormat};
-use crate::search::lbg::LbgSearch;
-use crate::search::{LocalSearch, Plan, PlannedSearch};
 pub use cluster::{run_status, ClusterArgs, ClusterSetup, StatusArgs};
 
 mod args;
+mod run_args;
+pub use run_args::{thread_pool, RunArgs};
 mod cluster;
 mod compare;
 mod parallel;
@@ -164,40 +164,8 @@ pub struct Common {
     /// Also write a JSON run report.
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// Search threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// Search kernel: auto, scalar, avx2, avx512.
-    #[arg(long, default_value = "auto")]
-    pub kernel: String,
-    /// Search plan per pyramid level, coarsest first, each local, cluster, lbg or
-    /// cluster-lbg: e.g. local,local,lbg or cluster,cluster,cluster; or exact (exhaustive everywhere, the cluster for large
-    /// levels when workers are given); or auto (LBG, approximate, for levels above the cost budget).
-    #[arg(long, default_value = "exact")]
-    pub search: String,
-    /// LBG: partitions searched per query (the P nearest seeds; 1..=seeds of the level).
-    #[arg(long, default_value_t = crate::search::lbg::DEFAULT_PROBES)]
-    pub lbg_probes: usize,
-    /// LBG: stop training when the relative change of the total seed displacement
-    /// falls below this (0 < T < 1).
-    #[arg(long, default_value_t = texsyn_engine::lbg::DEFAULT_THRESHOLD)]
-    pub lbg_threshold: f64,
-    /// Most megabytes the reference vectors of one level may take on this
-    /// machine (default: what the host or its cgroup still has). A level over
-    /// the budget stops the run with an error before it is built.
-    #[arg(long, value_name = "MB")]
-    pub max_memory: Option<u64>,
-    /// How a level's vectors are held on this machine: dense (built once,
-    /// fastest), planes (gathered from the sample as they are scanned: about
-    /// one byte per sample pixel, for large samples) or auto (dense up to
-    /// 1 GiB and half the memory left, planes beyond). Same output either way.
-    #[arg(long, value_name = "STORE", default_value = "auto")]
-    pub vector_store: String,
-    /// No progress bars.
-    #[arg(long, short)]
-    pub quiet: bool,
     #[command(flatten)]
-    pub cluster: ClusterArgs,
+    pub run: RunArgs,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -386,15 +354,6 @@ fn check_distinct(inputs: &[(&str, &Path)], common: &Common) -> Result<()> {
     crate::imaging::paths::check_files(&outputs, inputs, common.levels_dir.as_deref())
 }
 
-pub(crate) fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
-    let mut b = rayon::ThreadPoolBuilder::new();
-    if let Some(t) = threads {
-        ensure!((1..=1024).contains(&t), "--threads {t} must be in 1..=1024");
-        b = b.num_threads(t);
-    }
-    b.build().context("cannot start the search threads")
-}
-
 fn write_outputs(common: &Common, out: &block::Output, image: &DeepImage) -> Result<()> {
     imaging::save_image(&common.output, image)?;
     if let Some(p) = &common.copy_map {
@@ -489,47 +448,27 @@ fn run_synthesis(
     };
     check_outputs(common, size)?;
     copies.check(common)?;
-    let engine = Engine::with_kernel_name(&common.kernel)?;
-    let pool = thread_pool(common.threads)?;
-    let bars = progress::Bars::new(common.quiet);
-    let plan: Plan = common.search.parse()?;
-    let lbg = LbgSearch::new(engine, common.lbg_probes, common.lbg_threshold, cfg.seed)?;
+    let run = &common.run;
+    let pool = run.pool()?;
+    let bars = progress::Bars::new(run.quiet);
     // No level can have more LBG seeds than ⌈√(sample pixels)⌉: refuse impossible probes now.
-    let most_pixels = cfg
+    let largest_sample = cfg
         .level_samples
         .iter()
         .map(|(_, s)| s.width * s.height)
         .fold(sample.width * sample.height, usize::max);
-    lbg.check_vectors(most_pixels)?;
-    // Local workers (if any) live until the end of this function, also on error;
-    // the backend is declared after them, so it is dropped (ending the job on
-    // the workers) before they are killed.
-    let cluster = common.cluster.setup()?;
-    let (cluster_options, _local_workers, _ssh_workers) = match cluster {
-        Some(c) => (Some(c.options), c.local, c.ssh),
-        None => (None, None, None),
-    };
-    let mut local = LocalSearch::new(engine)
-        .with_storage(texsyn_engine::Storage::from_name(&common.vector_store)?);
-    if let Some(mb) = common.max_memory {
-        local = local.with_max_memory(mb.saturating_mul(1 << 20));
-    }
-    let mut backend = PlannedSearch::new(plan, local).with_lbg(Box::new(lbg));
-    backend.lbg_probes = u32::try_from(common.lbg_probes).unwrap_or(u32::MAX);
-    if let Some(options) = cluster_options {
-        let cluster = crate::cluster::ClusterSearch::connect(options, engine)?;
-        backend = backend.with_cluster(Box::new(cluster));
-    }
+    let mut opened = run.open(cfg.seed, largest_sample)?;
+    let backend = &mut opened.search;
     if !matches!(mode, Mode::Fill { .. }) || cfg.levels != 0 {
         // (Automatic levels of `fill` depend on the holes; checked per level then.)
         backend.check_levels(block::resolve_levels(sample.width, sample.height, &cfg))?;
     }
     let t = Instant::now();
-    let out = pool.install(|| block::synthesize(sample, &mode, &cfg, &mut backend, &bars))?;
+    let out = pool.install(|| block::synthesize(sample, &mode, &cfg, backend, &bars))?;
     tracing::info!(seconds = t.elapsed().as_secs_f64(), search = %out.report.search, "synthesis done");
     let image = copies.output(&out, cfg.chroma_blur > 0)?;
     write_outputs(common, &out, &image)?;
-    if !common.quiet {
+    if !run.quiet {
         eprintln!(
             "wrote {} ({}×{} {}, {} levels, {:.2} s)",
             common.output.display(),
@@ -630,9 +569,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 neighbourhood: c.neighbourhood.clone().unwrap_or_else(|| "reduced".into()),
                 jitter: a.jitter.clone().unwrap_or_else(|| "0.4".into()),
                 seed: c.seed,
-                threads: c.threads,
-                quiet: c.quiet,
-                cluster: c.cluster.clone(),
+                run: c.run.clone(),
             };
             parallel::run_synth(&a.input, &a.size, &c.output, c.copy_map.as_deref(), &args)
         }

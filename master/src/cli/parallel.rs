@@ -6,13 +6,12 @@ use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 
-use super::{parse_size, thread_pool, ClusterArgs};
+use super::progress::Bars;
+use super::{parse_size, RunArgs};
 use crate::imaging::{self, ColorImage};
 use crate::parallel::synth::{self, Neighbourhood, ParallelSettings, Synthesis};
 use crate::parallel::weights;
-use crate::search::SearchBackend;
 
 #[derive(Args, Debug)]
 pub struct MorphArgs {
@@ -53,14 +52,8 @@ pub struct ParallelArgs {
     /// Random seed of the jitter.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// No progress bar.
-    #[arg(long, short)]
-    pub quiet: bool,
     #[command(flatten)]
-    pub cluster: ClusterArgs,
+    pub run: RunArgs,
 }
 
 #[derive(Args, Debug)]
@@ -105,30 +98,6 @@ pub(super) fn parse_jitter(s: &str) -> Result<Vec<f64>> {
         .collect()
 }
 
-/// The search backend of a run: the local engine, or the cluster the flags
-/// name, with the workers this run started (stopped when it is dropped).
-pub(super) struct Backend {
-    pub search: Box<dyn SearchBackend>,
-    _workers: Option<(
-        Option<crate::launch::LocalWorkers>,
-        Option<crate::launch::SshWorkers>,
-    )>,
-}
-
-pub(super) fn open_backend(cluster: &ClusterArgs) -> Result<Backend> {
-    let engine = texsyn_engine::Engine::default();
-    Ok(match cluster.setup()? {
-        Some(c) => Backend {
-            search: Box::new(crate::cluster::ClusterSearch::connect(c.options, engine)?),
-            _workers: Some((c.local, c.ssh)),
-        },
-        None => Backend {
-            search: Box::new(crate::search::LocalSearch::new(engine)),
-            _workers: None,
-        },
-    })
-}
-
 impl ParallelArgs {
     fn settings(&self) -> Result<ParallelSettings> {
         Ok(ParallelSettings {
@@ -148,22 +117,14 @@ impl ParallelArgs {
         size: (usize, usize),
     ) -> Result<Synthesis> {
         let settings = self.settings()?;
-        let pool = thread_pool(self.threads)?;
-        let mut backend = open_backend(&self.cluster)?;
-        let bar = if self.quiet {
-            ProgressBar::hidden()
-        } else {
-            ProgressBar::new(0).with_style(
-                ProgressStyle::with_template("level {pos}/{len} [{bar:40}] {elapsed_precise}")
-                    .unwrap_or_else(|_| ProgressStyle::default_bar())
-                    .progress_chars("=> "),
-            )
-        };
-        let progress = |level: usize, levels: usize| {
-            bar.set_length(levels as u64);
-            bar.set_position(level as u64);
-            tracing::info!(level, levels, "coordinate level");
-        };
+        let pool = self.run.pool()?;
+        let largest = exemplars
+            .iter()
+            .map(|e| e.width * e.height)
+            .max()
+            .unwrap_or(0);
+        let mut opened = self.run.open(self.seed, largest)?;
+        let bars = Bars::new(self.run.quiet);
         let t = Instant::now();
         let out = pool.install(|| {
             synth::morph(
@@ -172,11 +133,10 @@ impl ParallelArgs {
                 size.0,
                 size.1,
                 &settings,
-                backend.search.as_mut(),
-                &progress,
+                &mut opened.search,
+                &bars,
             )
         })?;
-        bar.finish_and_clear();
         tracing::info!(
             seconds = t.elapsed().as_secs_f64(),
             levels = out.levels,
@@ -208,7 +168,7 @@ pub fn run_synth(
     if let Some(p) = coords {
         imaging::save_coord_map(p, size.0, size.1, &out.coords[0].coords)?;
     }
-    done(args.quiet, output, size, out.levels, t);
+    done(args.run.quiet, output, size, out.levels, t);
     Ok(())
 }
 
@@ -267,7 +227,7 @@ pub fn run_morph(a: &MorphArgs) -> Result<()> {
     for (p, c) in coord_paths.iter().zip(&out.coords) {
         imaging::save_coord_map(p, size.0, size.1, &c.coords)?;
     }
-    done(a.settings.quiet, &a.output, size, out.levels, t);
+    done(a.settings.run.quiet, &a.output, size, out.levels, t);
     Ok(())
 }
 

@@ -6,13 +6,13 @@ use std::time::Instant;
 
 use anyhow::{bail, ensure, Context, Result};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 
-use super::parallel::{open_backend, parse_jitter, parse_neighbourhood};
-use super::{thread_pool, ClusterArgs};
+use super::parallel::{parse_jitter, parse_neighbourhood};
+use super::progress::Bars;
+use super::RunArgs;
 use crate::imaging::volume::{Axis, Volume};
 use crate::imaging::{self, ColorImage};
-use crate::parallel::solid::{self, MaterialWeights, Solid, SolidSettings, View};
+use crate::parallel::solid::{self, MaterialWeights, SolidSettings, View};
 use crate::parallel::synth::ParallelSettings;
 
 /// Largest edge of a solid.
@@ -66,18 +66,8 @@ pub struct SolidArgs {
     /// preview. Repeat for more maps.
     #[arg(long = "replay", value_name = "MAP | [M:]AXES=MAP,...")]
     pub replay: Vec<String>,
-    /// Most memory the run may take, in MiB (default: what this machine and
-    /// its cgroup can still give).
-    #[arg(long, value_name = "MB", value_parser = clap::value_parser!(u64).range(1..))]
-    pub max_memory: Option<u64>,
-    /// Threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// No progress bar.
-    #[arg(long, short)]
-    pub quiet: bool,
     #[command(flatten)]
-    pub cluster: ClusterArgs,
+    pub run: RunArgs,
 }
 
 /// One parsed `[M:]AXES=PATH`.
@@ -239,7 +229,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
             r.name
         );
     }
-    let budget = crate::budget::Budget::of_mib(a.max_memory);
+    let budget = a.run.budget();
     let materials = specs.iter().map(|v| v.material).max().unwrap_or(0) + 1;
     let ramp = a
         .ramp
@@ -385,39 +375,18 @@ pub fn run(a: &SolidArgs) -> Result<()> {
         histogram: a.histogram,
         budget,
     };
-    let pool = thread_pool(a.threads)?;
-    let mut backend = open_backend(&a.cluster)?;
-    let bar = if a.quiet {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(0).with_style(
-            ProgressStyle::with_template(
-                "level {msg} [{bar:40}] sub-pass {pos}/{len} {elapsed_precise}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-        )
-    };
-    let progress = |level: usize, levels: usize, step: usize, steps: usize| {
-        if step == 0 {
-            bar.set_message(format!("{}/{levels}", level + 1));
-            bar.set_length(steps as u64);
-            tracing::info!(level, levels, "solid level");
-        }
-        bar.set_position(step as u64);
-    };
+    let pool = a.run.pool()?;
+    let largest = files
+        .iter()
+        .map(|(_, e)| e.width * e.height)
+        .max()
+        .unwrap_or(0);
+    let mut opened = a.run.open(a.seed, largest)?;
+    let bars = Bars::new(a.run.quiet);
     let t = Instant::now();
     let mut out = pool.install(|| {
-        solid::synthesize(
-            &views,
-            &weights,
-            size,
-            &settings,
-            backend.search.as_mut(),
-            &progress,
-        )
+        solid::synthesize(&views, &weights, size, &settings, &mut opened.search, &bars)
     })?;
-    bar.finish_and_clear();
     let seconds = t.elapsed().as_secs_f64();
     tracing::info!(seconds, levels = out.levels, "solid done");
 
@@ -450,7 +419,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
         colour.save_slices(&slice_dir, *axis)?;
     }
     for (name, channels, maps) in &replay_maps {
-        let v = replay(&out, maps, *channels)?;
+        let v = solid::replay(&out, maps, *channels)?;
         write_volume(
             &v,
             &a.output,
@@ -459,7 +428,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
             Some(info.clone()),
         )?;
     }
-    if !a.quiet {
+    if !a.run.quiet {
         eprintln!(
             "wrote {} ({}×{}×{}, {} levels, {seconds:.2} s)",
             a.output.display(),
@@ -481,28 +450,6 @@ fn write_volume(
 ) -> Result<()> {
     v.save(dir, stem, info)?;
     imaging::save_color(&dir.join(preview), &v.preview(4))
-}
-
-/// A map replayed through the solid's coordinates (§5.5): per voxel
-/// `Σ Wʲ·Mʲ(Sʲ)`, rounded, with `channels` 1 (the map's grey) or 3.
-pub fn replay(s: &Solid, maps: &[ColorImage], channels: usize) -> Result<Volume> {
-    ensure!(maps.len() == s.coords.len(), "one map per view");
-    let voxels = s.size.iter().product::<usize>();
-    let mut data = vec![0u8; voxels * channels];
-    for (i, px) in data.chunks_exact_mut(channels).enumerate() {
-        let mut acc = [0.0f32; 3];
-        for (j, (c, m)) in s.coords.iter().zip(maps).enumerate() {
-            let w = s.weights.at(j, i);
-            let p = m.get(c[i][0] as usize, c[i][1] as usize);
-            for (a, v) in acc.iter_mut().zip(p) {
-                *a += w * f32::from(v);
-            }
-        }
-        for (o, a) in px.iter_mut().zip(acc) {
-            *o = a.round().clamp(0.0, 255.0) as u8;
-        }
-    }
-    Volume::new(s.size, channels, data)
 }
 
 #[cfg(test)]

@@ -61,3 +61,13 @@ fn first_line(stdout: ChildStdout, thread: &str) -> Result<Option<String>> {
         _ => None,
     })
 }
+
+/// The cluster of one run: what to connect to, and the workers started for
+/// it (stopped when this is dropped; drop the search backend first).
+#[derive(Debug)]
+pub struct ClusterSetup {
+    pub options: crate::cluster::ClusterOptions,
+    pub local: Option<LocalWorkers>,
+    /// Workers launched over ssh (`--launch`), stopped when this is dropped.
+    pub ssh: Option<SshWorkers>,
+}

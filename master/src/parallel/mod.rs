@@ -3,16 +3,23 @@
 //! §10): every level stores exemplar coordinates, so each pixel of a
 //! correction sub-pass is computed on its own.
 //!
+//! - [`driver`]: the one level loop over a [`driver::Lattice`] (a plane or
+//!   a volume), the settings and the colour blend `Σ Wʲ·Eʲ(Sʲ)`;
+//! - [`neighbourhood`]: the neighbourhoods compared;
+//! - [`exemplar`]: an exemplar's level, its bases and the choice of eq. 3;
 //! - [`coords`]: coordinate levels, upsampling and the §4.2 jitter;
 //! - [`appearance`]: the appearance space (5×5 windows, PCA);
 //! - [`candidates`]: k-coherence sets from the engine's top-k search;
 //! - [`weights`]: weight maps of a morph;
-//! - [`synth`]: the levels, the correction and the morph;
-//! - [`solid`]: solid textures from 2-D views (§5).
+//! - [`synth`]: the plane: synthesis and morph (§3–4);
+//! - [`solid`]: the volume: solid textures from 2-D views (§5).
 
 pub mod appearance;
 pub mod candidates;
 pub mod coords;
+pub mod driver;
+pub mod exemplar;
+pub mod neighbourhood;
 pub mod solid;
 pub mod synth;
 pub mod weights;

@@ -8,10 +8,12 @@
 
 pub mod lbg;
 mod local;
+mod open;
 mod plan;
 
 pub use lbg::LbgSearch;
 pub use local::LocalSearch;
+pub use open::{open, OpenSearch, SearchOptions};
 pub use plan::{level_cost, Plan, PlannedSearch, Strategy};
 
 use anyhow::{ensure, Result};

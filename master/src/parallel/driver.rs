@@ -1,0 +1,214 @@
+//! The one level loop of the synthesis on coordinates, in 2-D (a plane of
+//! pixels, Manke–Wünsche §3–4) and in 3-D (a volume of voxels, §5): per
+//! level, each exemplar's level and k-coherence candidate sets, then the
+//! coordinates started or upsampled and jittered, then the correction passes.
+//! A [`Lattice`] is what differs between the plane and the volume.
+
+use anyhow::{ensure, Result};
+use rayon::prelude::*;
+
+use super::appearance::Pca;
+use super::candidates::Candidates;
+use super::exemplar::ExemplarLevel;
+use super::neighbourhood::Neighbourhood;
+use crate::imaging::ColorImage;
+use crate::progress::Progress;
+use crate::search::SearchBackend;
+
+/// Settings of a synthesis on coordinates.
+#[derive(Clone, Debug)]
+pub struct ParallelSettings {
+    pub neighbourhood: Neighbourhood,
+    /// Jitter strength `r_i` per level, coarsest first (the last value
+    /// repeats).
+    pub jitter: Vec<f64>,
+    /// Correction passes per level (each of 4 sub-passes).
+    pub passes: usize,
+    /// k of the k-coherence candidate sets.
+    pub k: usize,
+    pub seed: u64,
+}
+
+impl Default for ParallelSettings {
+    fn default() -> Self {
+        Self {
+            neighbourhood: Neighbourhood::Reduced,
+            jitter: vec![0.4],
+            passes: 2,
+            k: 4,
+            seed: 1,
+        }
+    }
+}
+
+/// Levels of a synthesis from `exemplars`: the coarsest step is the largest
+/// power of two up to a quarter of the smallest exemplar side.
+pub(super) fn level_count(exemplars: &[&ColorImage]) -> usize {
+    let smallest = exemplars
+        .iter()
+        .map(|e| e.width.min(e.height))
+        .min()
+        .unwrap_or(8);
+    (usize::BITS - (smallest / 4).max(1).leading_zeros()) as usize
+}
+
+/// Exemplar j's jitter seed (exemplar 0 keeps `seed`, so a one-exemplar
+/// morph is the plain synthesis).
+pub(super) fn exemplar_seed(seed: u64, j: usize) -> u64 {
+    seed.wrapping_add((j as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))
+}
+
+/// Jitter strength of `level` (coarsest first; the last value repeats).
+pub(super) fn jitter_at(s: &ParallelSettings, level: usize) -> f64 {
+    *s.jitter.get(level).or(s.jitter.last()).unwrap_or(&0.0)
+}
+
+/// Checks an exemplar's size: at least 8×8 (one level of 5×5 windows) and at
+/// most 65535 per side (what a coordinate map holds); `what` names it.
+pub(super) fn check_exemplar(e: &ColorImage, what: &str) -> Result<()> {
+    ensure!(
+        e.width >= 8 && e.height >= 8,
+        "{what} is {}×{}; an exemplar must be at least 8×8",
+        e.width,
+        e.height
+    );
+    ensure!(
+        e.width <= 65535 && e.height <= 65535,
+        "{what} is wider or taller than 65535 pixels, which a coordinate map cannot hold"
+    );
+    Ok(())
+}
+
+/// The exemplars at one level: each at the level's blur, with its
+/// k-coherence candidate sets (`k` and a table of `k` per pixel).
+pub(super) struct LevelExemplars {
+    pub ex: Vec<ExemplarLevel>,
+    pub cands: Vec<(usize, Vec<[u32; 2]>)>,
+    /// Grid stride of the first exemplar's candidate sets.
+    pub stride: usize,
+}
+
+impl LevelExemplars {
+    /// Builds the level of step `h` of every exemplar and searches its
+    /// candidate sets through `backend` (exemplar `e` of `level` is the
+    /// backend's level `level · exemplars + e`: a worker keeps one level per
+    /// number).
+    #[allow(clippy::too_many_arguments)]
+    fn build(
+        exemplars: &[&ColorImage],
+        h: usize,
+        pca: &Pca,
+        points: &[Vec<[i32; 2]>],
+        k: usize,
+        level: usize,
+        backend: &mut dyn SearchBackend,
+    ) -> Result<Self> {
+        let mut ex = Vec::with_capacity(exemplars.len());
+        let mut cands = Vec::with_capacity(exemplars.len());
+        let mut stride = 1;
+        for (e, img) in exemplars.iter().enumerate() {
+            let level_ex = ExemplarLevel::build(img, h, pca, points);
+            let c = Candidates::search(
+                &level_ex.appearance,
+                (level_ex.width, level_ex.height),
+                h / 2,
+                level_ex.dims,
+                k,
+                level * exemplars.len() + e,
+                backend,
+            )?;
+            if e == 0 {
+                stride = c.stride();
+            }
+            ex.push(level_ex);
+            cands.push((c.k(), c.table()));
+        }
+        Ok(Self { ex, cands, stride })
+    }
+}
+
+/// What the level loop drives: a plane of pixels or a volume of voxels,
+/// holding every exemplar's (or view's) coordinates.
+pub(super) trait Lattice {
+    /// Sub-passes of one correction pass (4 in a plane, 8 in a volume).
+    const SUB_PASSES: usize;
+    /// The coordinates of the level of step `h`: the start at the coarsest
+    /// level, the previous level upsampled after it, then jittered with
+    /// strength `r`.
+    fn prepare(&mut self, level: usize, h: usize, r: f64);
+    /// The level's correction: `passes` passes of [`Self::SUB_PASSES`]
+    /// sub-passes against `ex`, one progress step per sub-pass.
+    fn correct(
+        &mut self,
+        ex: &LevelExemplars,
+        points: &[Vec<[i32; 2]>],
+        passes: usize,
+        progress: &dyn Progress,
+    );
+}
+
+/// Runs every level of `lattice` from `exemplars`, coarsest first, and
+/// returns each level's candidate grid stride.
+pub(super) fn run_levels<L: Lattice>(
+    lattice: &mut L,
+    exemplars: &[&ColorImage],
+    pca: &Pca,
+    s: &ParallelSettings,
+    backend: &mut dyn SearchBackend,
+    progress: &dyn Progress,
+) -> Result<Vec<usize>> {
+    let levels = level_count(exemplars);
+    let points = s.neighbourhood.points();
+    let mut strides = Vec::with_capacity(levels);
+    for level in 0..levels {
+        let h = 1usize << (levels - 1 - level);
+        let t = std::time::Instant::now();
+        let ex = LevelExemplars::build(exemplars, h, pca, &points, s.k, level, backend)?;
+        strides.push(ex.stride);
+        let t_exemplars = t.elapsed().as_secs_f64();
+        lattice.prepare(level, h, jitter_at(s, level));
+        let t = std::time::Instant::now();
+        progress.start(
+            &format!("level {}/{levels}", level + 1),
+            (s.passes * L::SUB_PASSES) as u64,
+            "sub-passes",
+        );
+        lattice.correct(&ex, &points, s.passes, progress);
+        progress.finish();
+        tracing::debug!(
+            level,
+            exemplar_levels_and_candidates = t_exemplars,
+            correction = t.elapsed().as_secs_f64(),
+            "level timings (s)"
+        );
+    }
+    Ok(strides)
+}
+
+/// The output colour `Σ Wʲ·Eʲ(Sʲ)` of `n` pixels or voxels from `m`
+/// exemplars (or views, or replayed maps), rounded to bytes: `term(i, j)` is
+/// exemplar `j`'s weight and colour at `i`. `channels` is 3, or 1 for the
+/// first channel only.
+pub fn blend(
+    n: usize,
+    m: usize,
+    channels: usize,
+    term: impl Fn(usize, usize) -> (f32, [u8; 3]) + Sync,
+) -> Vec<u8> {
+    let mut out = vec![0u8; n * channels];
+    out.par_chunks_mut(channels)
+        .enumerate()
+        .for_each(|(i, px)| {
+            let mut acc = [0.0f32; 3];
+            for j in 0..m {
+                let (w, p) = term(i, j);
+                for (a, v) in acc.iter_mut().zip(p) {
+                    *a += w * f32::from(v);
+                }
+            }
+            for (o, a) in px.iter_mut().zip(acc) {
+                *o = a.round().clamp(0.0, 255.0) as u8;
+            }
+        });
+    out
+}

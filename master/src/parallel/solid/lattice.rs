@@ -1,0 +1,457 @@
+//! The volume of a solid synthesis (Manke–Wünsche §5): the [`Lattice`] of
+//! voxels the level loop drives. Coordinates start in each view's plane
+//! (§5.1), upsample by eq. 4 and are corrected in eight sub-passes (§5.3),
+//! each view against the blend's neighbourhood in its plane (eq. 5), with
+//! histogram matching on the first appearance component.
+
+use rayon::prelude::*;
+
+use super::weights::{downsample3, ViewWeights};
+use super::View;
+use crate::parallel::coords::jitter_offset;
+use crate::parallel::driver::{exemplar_seed, Lattice, LevelExemplars};
+use crate::parallel::exemplar::ExemplarLevel;
+use crate::progress::Progress;
+
+/// The eight sub-passes, a 2×2×2 pattern of `(x, y, z)` parities (§5.3),
+/// ordered so that consecutive ones differ in at least two axes.
+pub const SUB_PASSES: [[usize; 3]; 8] = [
+    [0, 0, 0],
+    [1, 1, 1],
+    [1, 1, 0],
+    [0, 0, 1],
+    [1, 0, 1],
+    [0, 1, 0],
+    [0, 1, 1],
+    [1, 0, 0],
+];
+
+/// Bins of the histogram matching.
+pub const BINS: usize = 32;
+
+/// A solid's volume being synthesised.
+pub(super) struct Volume<'a> {
+    pub views: &'a [View<'a>],
+    /// Per view, its distinct exemplar.
+    pub view_ex: &'a [usize],
+    pub size: [usize; 3],
+    pub seed: u64,
+    /// Strength of the histogram matching.
+    pub histogram: f32,
+    pub dims: usize,
+    /// Per material, its weight at every voxel of the full size (several
+    /// materials only).
+    pub full_weights: Option<Vec<Vec<f32>>>,
+    /// The neighbourhood's points per view as voxel offsets in its plane (eq. 5).
+    pub points3: Vec<Vec<Vec<[i64; 3]>>>,
+    /// Every view's coordinate at every voxel of the current level (view
+    /// fastest), and the level's size.
+    pub coords: Vec<[u32; 2]>,
+    pub level_size: [usize; 3],
+    /// The current level's view weights.
+    pub weights: Option<ViewWeights>,
+    pub blend: Vec<f32>,
+}
+
+impl Lattice for Volume<'_> {
+    const SUB_PASSES: usize = SUB_PASSES.len();
+
+    fn prepare(&mut self, level: usize, h: usize, r: f64) {
+        let ls = self.size.map(|n| n.div_ceil(h));
+        let material_of: Vec<usize> = self.views.iter().map(|v| v.material).collect();
+        let volumes = self
+            .full_weights
+            .as_ref()
+            .map(|f| f.iter().map(|w| downsample3(w, self.size, h)).collect());
+        self.weights = Some(ViewWeights::new(&material_of, volumes));
+        let mut coords = if level == 0 {
+            initial(ls, self.views, h)
+        } else {
+            upsample(&self.coords, self.level_size, ls, self.views, h)
+        };
+        let (views, seed, m) = (self.views, self.seed, self.views.len());
+        coords.par_chunks_mut(m).enumerate().for_each(|(i, cs)| {
+            let p = [
+                (i % ls[0]) as i64,
+                (i / ls[0] % ls[1]) as i64,
+                (i / (ls[0] * ls[1])) as i64,
+            ];
+            for (j, (c, v)) in cs.iter_mut().zip(views).enumerate() {
+                let [jx, jy] = jitter_offset(p, r, level as u32, exemplar_seed(seed, j));
+                let (ew, eh) = (v.exemplar.width as i64, v.exemplar.height as i64);
+                c[0] = (i64::from(c[0]) + jx * h as i64).rem_euclid(ew) as u32;
+                c[1] = (i64::from(c[1]) + jy * h as i64).rem_euclid(eh) as u32;
+            }
+        });
+        self.coords = coords;
+        self.level_size = ls;
+    }
+
+    fn correct(
+        &mut self,
+        ex: &LevelExemplars,
+        points: &[Vec<[i32; 2]>],
+        passes: usize,
+        progress: &dyn Progress,
+    ) {
+        let ls = self.level_size;
+        let m = self.views.len();
+        let lw = self.weights.as_ref().expect("prepared");
+        let bins = Bins::over(&ex.ex);
+        let mut target = vec![0.0f64; BINS];
+        let n = ls.iter().product::<usize>();
+        for (j, &e) in self.view_ex.iter().enumerate() {
+            let mean = (0..n).map(|i| f64::from(lw.at(j, i))).sum::<f64>() / n as f64;
+            for (t, v) in target.iter_mut().zip(bins.histogram(&ex.ex[e])) {
+                *t += mean * v;
+            }
+        }
+        let ctx = Level {
+            bins,
+            target,
+            size: ls,
+            m,
+            dims: self.dims,
+            ex: &ex.ex,
+            view_ex: self.view_ex,
+            planes: self.views.iter().map(|v| v.axis.plane()).collect(),
+            points2: points,
+            points: &self.points3,
+            cands: &ex.cands,
+            weights: lw,
+            scale: ex
+                .ex
+                .iter()
+                .map(|e| {
+                    let n = (e.appearance.len() / e.dims.max(1)).max(1) as f64;
+                    let var = e
+                        .appearance
+                        .iter()
+                        .map(|&a| f64::from(a) * f64::from(a))
+                        .sum::<f64>()
+                        / n;
+                    (var * points.len() as f64) as f32
+                })
+                .collect(),
+            balance: self.histogram,
+        };
+        ctx.blend_all(&self.coords, &mut self.blend);
+        for _ in 0..passes {
+            for sub in SUB_PASSES {
+                ctx.correct(&mut self.coords, &mut self.blend, sub);
+                progress.advance(1);
+            }
+        }
+    }
+}
+
+/// The coarsest level's start (§5.1): `S(P) = P_{u,v}·h mod s_e` in each
+/// view's plane.
+pub(super) fn initial(ls: [usize; 3], views: &[View], h: usize) -> Vec<[u32; 2]> {
+    let n = ls.iter().product::<usize>();
+    (0..n)
+        .into_par_iter()
+        .flat_map_iter(|i| {
+            let p = [i % ls[0], i / ls[0] % ls[1], i / (ls[0] * ls[1])];
+            views.iter().map(move |v| {
+                let [u, w] = v.axis.plane();
+                [
+                    (p[u] * h % v.exemplar.width) as u32,
+                    (p[w] * h % v.exemplar.height) as u32,
+                ]
+            })
+        })
+        .collect()
+}
+
+/// Coordinate upsampling (eq. 4): a voxel takes its parent's coordinate plus
+/// `h·Δ` of its parity in the view's plane; the parity along the view's own
+/// axis adds nothing, so the two children across the view repeat the
+/// coordinate.
+pub(super) fn upsample(
+    prev: &[[u32; 2]],
+    ps: [usize; 3],
+    ls: [usize; 3],
+    views: &[View],
+    h: usize,
+) -> Vec<[u32; 2]> {
+    let m = views.len();
+    let n = ls.iter().product::<usize>();
+    (0..n)
+        .into_par_iter()
+        .flat_map_iter(|i| {
+            let q = [i % ls[0], i / ls[0] % ls[1], i / (ls[0] * ls[1])];
+            let p = [
+                (q[0] / 2).min(ps[0] - 1),
+                (q[1] / 2).min(ps[1] - 1),
+                (q[2] / 2).min(ps[2] - 1),
+            ];
+            let pi = (p[2] * ps[1] + p[1]) * ps[0] + p[0];
+            views.iter().enumerate().map(move |(j, v)| {
+                let [u, w] = v.axis.plane();
+                let c = prev[pi * m + j];
+                [
+                    (c[0] + (h * (q[u] % 2)) as u32) % v.exemplar.width as u32,
+                    (c[1] + (h * (q[w] % 2)) as u32) % v.exemplar.height as u32,
+                ]
+            })
+        })
+        .collect()
+}
+
+/// Bins of the first appearance component over `[lo, hi]`.
+#[derive(Clone, Copy)]
+struct Bins {
+    lo: f32,
+    scale: f32,
+}
+
+impl Bins {
+    fn over(ex: &[ExemplarLevel]) -> Self {
+        let (lo, hi) = ex
+            .iter()
+            .flat_map(|e| e.appearance.iter().step_by(e.dims.max(1)))
+            .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+        let scale = if hi > lo {
+            BINS as f32 / (hi - lo)
+        } else {
+            0.0
+        };
+        Self { lo, scale }
+    }
+
+    #[inline]
+    fn of(self, v: f32) -> usize {
+        (((v - self.lo) * self.scale) as usize).min(BINS - 1)
+    }
+
+    /// The histogram of an exemplar level's first component.
+    fn histogram(self, e: &ExemplarLevel) -> Vec<f64> {
+        let mut h = vec![0.0; BINS];
+        let mut n = 0.0;
+        for &v in e.appearance.iter().step_by(e.dims.max(1)) {
+            h[self.of(v)] += 1.0;
+            n += 1.0;
+        }
+        h.iter_mut().for_each(|v| *v /= n);
+        h
+    }
+}
+
+/// Everything a correction sub-pass of one level reads.
+struct Level<'a> {
+    size: [usize; 3],
+    m: usize,
+    dims: usize,
+    /// Per distinct exemplar.
+    ex: &'a [ExemplarLevel],
+    /// Per view, its exemplar in `ex`.
+    view_ex: &'a [usize],
+    planes: Vec<[usize; 2]>,
+    /// The neighbourhood's points in a view's plane, and per view as voxel
+    /// offsets.
+    points2: &'a [Vec<[i32; 2]>],
+    points: &'a [Vec<Vec<[i64; 3]>>],
+    /// Per distinct exemplar, `k` and every pixel's candidates.
+    cands: &'a [(usize, Vec<[u32; 2]>)],
+    weights: &'a ViewWeights,
+    /// Strength of the usage penalty (see [`Level::usage`]).
+    balance: f32,
+    /// Per distinct exemplar, the variance of its appearance vectors times
+    /// the neighbourhood's points: the size of a typical distance.
+    scale: Vec<f32>,
+    /// Bins of the first appearance component.
+    bins: Bins,
+    /// The histogram of the first component the solid should have: the
+    /// exemplars' histograms weighted by their views' mean weights.
+    target: Vec<f64>,
+}
+
+impl Level<'_> {
+    #[inline]
+    fn index(&self, p: [i64; 3]) -> usize {
+        let s = self.size;
+        let x = p[0].rem_euclid(s[0] as i64) as usize;
+        let y = p[1].rem_euclid(s[1] as i64) as usize;
+        let z = p[2].rem_euclid(s[2] as i64) as usize;
+        (z * s[1] + y) * s[0] + x
+    }
+
+    /// `C(i, X)` of eq. 2 at voxel `i`: the weighted appearance of every
+    /// view at its coordinate.
+    #[inline]
+    fn blend_at(&self, i: usize, coords: &[[u32; 2]], acc: &mut [f32]) {
+        acc.fill(0.0);
+        for (j, c) in coords[i * self.m..(i + 1) * self.m].iter().enumerate() {
+            let w = self.weights.at(j, i);
+            for (a, v) in acc.iter_mut().zip(self.ex[self.view_ex[j]].at(c[0], c[1])) {
+                *a += w * v;
+            }
+        }
+    }
+
+    fn blend_all(&self, coords: &[[u32; 2]], blend: &mut Vec<f32>) {
+        let n = self.size.iter().product::<usize>();
+        blend.clear();
+        blend.resize(n * self.dims, 0.0);
+        blend
+            .par_chunks_mut(self.dims)
+            .enumerate()
+            .for_each(|(i, acc)| self.blend_at(i, coords, acc));
+    }
+
+    /// One sub-pass: the voxels of parity `sub` take, in every view, the
+    /// candidate whose exemplar neighbourhood best matches the blend's
+    /// neighbourhood in the view's plane (eq. 5, eq. 3). Every voxel reads
+    /// the blend and the coordinates as they were before the sub-pass (the
+    /// voxels it reads have another parity, or are itself), so the result
+    /// does not depend on the threads. The blend is then brought up to date
+    /// at the voxels that changed.
+    fn correct(&self, coords: &mut [[u32; 2]], blend: &mut [f32], sub: [usize; 3]) {
+        let [w, h, d] = self.size;
+        let m = self.m;
+        let pen = self.penalties(blend);
+        let pen = &pen;
+        let zs: Vec<usize> = (sub[2]..d).step_by(2).collect();
+        let updates: Vec<Vec<[u32; 2]>> = {
+            let coords = &*coords;
+            let blend = &*blend;
+            zs.par_iter()
+                .map_init(
+                    || (Vec::new(), Vec::new()),
+                    |(want, buf), &z| {
+                        let mut out = Vec::new();
+                        for y in (sub[1]..h).step_by(2) {
+                            for x in (sub[0]..w).step_by(2) {
+                                let p = [x as i64, y as i64, z as i64];
+                                let i = (z * h + y) * w + x;
+                                for j in 0..m {
+                                    out.push(self.best(p, i, j, coords, blend, pen, want, buf));
+                                }
+                            }
+                        }
+                        out
+                    },
+                )
+                .collect()
+        };
+        for (&z, slab) in zs.iter().zip(&updates) {
+            let mut it = slab.chunks_exact(m);
+            for y in (sub[1]..h).step_by(2) {
+                for x in (sub[0]..w).step_by(2) {
+                    let i = (z * h + y) * w + x;
+                    coords[i * m..(i + 1) * m].copy_from_slice(it.next().expect("one per voxel"));
+                }
+            }
+        }
+        let coords = &*coords;
+        blend
+            .par_chunks_mut(w * h * self.dims)
+            .enumerate()
+            .filter(|(z, _)| z % 2 == sub[2])
+            .for_each(|(z, slab)| {
+                for y in (sub[1]..h).step_by(2) {
+                    for x in (sub[0]..w).step_by(2) {
+                        let at = y * w + x;
+                        self.blend_at(
+                            z * w * h + at,
+                            coords,
+                            &mut slab[at * self.dims..(at + 1) * self.dims],
+                        );
+                    }
+                }
+            });
+    }
+
+    /// Histogram matching (after Kopf et al.'s use of it against the
+    /// wash-out of solid synthesis), on the first appearance component (the
+    /// brightness of a pixel's 5×5 window, so it restores contrast at the
+    /// window's scale, not as grain): per bin, the penalty a candidate of
+    /// that bin pays, `balance·(H/T − 1)` (times the exemplar's `scale`)
+    /// where the solid's blend `H` holds more of the bin than the
+    /// exemplars' `T`, 0 otherwise. Counted on the blend before the
+    /// sub-pass, so it does not depend on the threads.
+    fn penalties(&self, blend: &[f32]) -> Vec<f32> {
+        let n = blend.len() / self.dims;
+        let counts = blend
+            .par_chunks(self.dims * 4096)
+            .fold(
+                || vec![0u64; BINS],
+                |mut acc, chunk| {
+                    for v in chunk.iter().step_by(self.dims) {
+                        acc[self.bins.of(*v)] += 1;
+                    }
+                    acc
+                },
+            )
+            .reduce(
+                || vec![0u64; BINS],
+                |mut a, b| {
+                    for (x, y) in a.iter_mut().zip(b) {
+                        *x += y;
+                    }
+                    a
+                },
+            );
+        counts
+            .iter()
+            .zip(&self.target)
+            .map(|(&c, &t)| {
+                let h = c as f64 / n as f64;
+                (self.balance as f64 * (h / t.max(1e-4) - 1.0).max(0.0)) as f32
+            })
+            .collect()
+    }
+
+    /// View `j`'s best candidate at voxel `p` (index `i`).
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn best(
+        &self,
+        p: [i64; 3],
+        i: usize,
+        j: usize,
+        coords: &[[u32; 2]],
+        blend: &[f32],
+        pen: &[f32],
+        want: &mut Vec<f32>,
+        buf: &mut Vec<f32>,
+    ) -> [u32; 2] {
+        let dims = self.dims;
+        // N_S(P) in the view's plane (eq. 5).
+        want.clear();
+        for pt in &self.points[j] {
+            let start = want.len();
+            want.extend(std::iter::repeat_n(0.0f32, dims));
+            let share = 1.0 / pt.len() as f32;
+            for o in pt {
+                let n = self.index([p[0] + o[0], p[1] + o[1], p[2] + o[2]]);
+                for (a, v) in want[start..]
+                    .iter_mut()
+                    .zip(&blend[n * dims..(n + 1) * dims])
+                {
+                    *a += v * share;
+                }
+            }
+        }
+        let exl = &self.ex[self.view_ex[j]];
+        let (k, table) = &self.cands[self.view_ex[j]];
+        let [u, v] = self.planes[j];
+        // k-coherence from the 3×3 neighbours in the view's plane.
+        let (bases, nb) = exl.bases(|du, dv| {
+            let mut q = p;
+            q[u] += du;
+            q[v] += dv;
+            coords[self.index(q) * self.m + j]
+        });
+        let scale = self.scale[self.view_ex[j]];
+        exl.best_candidate(
+            &bases[..nb],
+            (*k, table),
+            self.points2,
+            (want, buf),
+            coords[i * self.m + j],
+            |q| scale * pen[self.bins.of(exl.at(q[0], q[1])[0])],
+        )
+    }
+}

@@ -1,0 +1,311 @@
+//! Solid textures from 2-D views (Manke–Wünsche §5; ARCHITECTURE §11).
+//!
+//! Each *view* is a 2-D exemplar that shows the material cut across one axis
+//! of the volume, and keeps its own volume of exemplar coordinates (§5.1).
+//! Per level the coordinates are initialised or upsampled in the view's plane
+//! and copied along the third axis (eq. 4), jittered by a hash of the 3-D
+//! position, and corrected in eight sub-passes, a 2×2×2 pattern (§5.3). For a
+//! voxel and a view, the neighbourhood is gathered in that view's plane from
+//! the blend of every view's appearance (eq. 5), and the view takes the
+//! k-coherence candidate that matches it best (eq. 3). Several materials,
+//! each with its views, morph under weight volumes as the 2-D morph does
+//! under weight maps (§4): a view's weight is its material's weight shared
+//! evenly among the material's views.
+
+use anyhow::{bail, ensure, Result};
+
+use super::appearance::Pca;
+use super::driver::{blend, check_exemplar, run_levels, ParallelSettings};
+use super::neighbourhood::Neighbourhood;
+use crate::imaging::volume::Volume;
+use crate::imaging::ColorImage;
+use crate::progress::Progress;
+use crate::search::SearchBackend;
+
+mod lattice;
+#[cfg(test)]
+mod tests;
+mod weights;
+
+pub use lattice::{BINS, SUB_PASSES};
+pub use weights::ViewWeights;
+
+pub use crate::imaging::volume::Axis;
+
+/// One exemplar view: material `material` (0-based) seen across `axis`.
+#[derive(Clone, Copy)]
+pub struct View<'a> {
+    pub axis: Axis,
+    pub exemplar: &'a ColorImage,
+    pub material: usize,
+}
+
+/// How the materials share the volume.
+#[derive(Clone, Debug)]
+pub enum MaterialWeights {
+    /// One material everywhere.
+    Single,
+    /// A linear ramp along an axis: material `j` of `m` has weight 1 at the
+    /// `j`-th of `m` evenly spaced stations and falls to 0 at the next ones
+    /// (as the 2-D `--ramp`).
+    Ramp(Axis),
+    /// One weight volume per material (x fastest, then y, then z), any
+    /// non-negative scale; normalised per voxel (all zero: evenly shared).
+    Volumes(Vec<Vec<f32>>),
+}
+
+/// A finished solid.
+pub struct Solid {
+    pub size: [usize; 3],
+    /// RGB per voxel, x fastest, then y, then z.
+    pub colour: Vec<u8>,
+    /// Per view, its finest-level exemplar coordinate at every voxel.
+    pub coords: Vec<Vec<[u32; 2]>>,
+    /// Every view's weight at every voxel of the finest level.
+    pub weights: ViewWeights,
+    pub levels: usize,
+    /// Components of the appearance space and the variance they keep.
+    pub dims: usize,
+    pub explained_variance: f64,
+}
+
+/// Bytes a solid of `size` with `views` views, `materials` materials and
+/// `dims` appearance components needs at its finest level: coordinates
+/// (twice at the end, when they are split per view), the sub-pass's new
+/// coordinates, the appearance blend, the weight volumes (full size and
+/// level), and the colour (twice, as it is written).
+pub fn memory_needed(size: [usize; 3], views: usize, materials: usize, dims: usize) -> u64 {
+    let v = size.iter().map(|&s| s as u64).product::<u64>();
+    let m = views as u64;
+    let weights = if materials > 1 {
+        8 * materials as u64
+    } else {
+        0
+    };
+    v * (17 * m + 4 * dims as u64 + weights + 6)
+}
+
+/// Synthesises a solid of `size` voxels from `views`; a solid larger than
+/// the memory limit is refused before any work, naming the memory it needs.
+pub fn synthesize(
+    views: &[View],
+    weights: &MaterialWeights,
+    size: [usize; 3],
+    settings: &SolidSettings,
+    backend: &mut dyn SearchBackend,
+    progress: &dyn Progress,
+) -> Result<Solid> {
+    let s = &settings.base;
+    ensure!(
+        settings.histogram.is_finite() && settings.histogram >= 0.0,
+        "the histogram matching strength must be 0 or more"
+    );
+    ensure!(
+        !views.is_empty(),
+        "no view to synthesise from; give --view AXIS=IMAGE"
+    );
+    ensure!(
+        size.iter().all(|&n| n >= 1),
+        "the solid size must not be empty"
+    );
+    if s.neighbourhood == Neighbourhood::Reduced {
+        bail!(
+            "the reduced neighbourhood fails in 3-D (Manke–Wünsche §5.4); use half (the default), 5 or 7"
+        );
+    }
+    let materials = views.iter().map(|v| v.material).max().unwrap_or(0) + 1;
+    for mat in 0..materials {
+        let axes: Vec<Axis> = views
+            .iter()
+            .filter(|v| v.material == mat)
+            .map(|v| v.axis)
+            .collect();
+        ensure!(
+            !axes.is_empty(),
+            "material {} has no view; number materials 1, 2, ... without gaps",
+            mat + 1
+        );
+        for a in Axis::ALL {
+            ensure!(
+                axes.iter().filter(|&&b| b == a).count() <= 1,
+                "material {} has two views across {}; give one exemplar per axis",
+                mat + 1,
+                a.name()
+            );
+        }
+    }
+    for v in views {
+        check_exemplar(v.exemplar, &format!("the view across {}", v.axis.name()))?;
+    }
+    let voxels = size.iter().product::<usize>();
+    let full_weights: Option<Vec<Vec<f32>>> = match weights {
+        MaterialWeights::Single => {
+            ensure!(
+                materials == 1,
+                "{materials} materials need weight volumes or a ramp"
+            );
+            None
+        }
+        MaterialWeights::Ramp(axis) => {
+            (materials > 1).then(|| weights::ramp(materials, *axis, size))
+        }
+        MaterialWeights::Volumes(v) => {
+            ensure!(
+                v.len() == materials,
+                "{} weight volumes for {materials} materials; give one per material",
+                v.len()
+            );
+            ensure!(
+                v.iter().all(|w| w.len() == voxels),
+                "every weight volume must be {}×{}×{}, the solid's size",
+                size[0],
+                size[1],
+                size[2]
+            );
+            let mut v = v.clone();
+            crate::parallel::weights::normalise(&mut v);
+            Some(v)
+        }
+    };
+    // Views that share an exemplar share its levels and candidate sets.
+    let mut uniq: Vec<&ColorImage> = Vec::new();
+    let view_ex: Vec<usize> = views
+        .iter()
+        .map(|v| {
+            match uniq.iter().position(|u| {
+                (u.width, u.height) == (v.exemplar.width, v.exemplar.height)
+                    && u.rgb == v.exemplar.rgb
+            }) {
+                Some(k) => k,
+                None => {
+                    uniq.push(v.exemplar);
+                    uniq.len() - 1
+                }
+            }
+        })
+        .collect();
+    let pca = Pca::fit(&uniq)?;
+    let dims = pca.components.len();
+    let need = memory_needed(size, views.len(), materials, dims);
+    settings.budget.check(
+        &format!(
+            "a {}×{}×{} solid with {} views",
+            size[0],
+            size[1],
+            size[2],
+            views.len()
+        ),
+        need,
+        "choose a smaller --size",
+    )?;
+    let m = views.len();
+    let points = s.neighbourhood.points();
+    // Each view's neighbourhood points as voxel offsets in its plane (eq. 5).
+    let points3: Vec<Vec<Vec<[i64; 3]>>> = views
+        .iter()
+        .map(|v| {
+            let [u, w] = v.axis.plane();
+            points
+                .iter()
+                .map(|pt| {
+                    pt.iter()
+                        .map(|o| {
+                            let mut d = [0i64; 3];
+                            d[u] = i64::from(o[0]);
+                            d[w] = i64::from(o[1]);
+                            d
+                        })
+                        .collect()
+                })
+                .collect()
+        })
+        .collect();
+    let mut volume = lattice::Volume {
+        views,
+        view_ex: &view_ex,
+        size,
+        seed: s.seed,
+        histogram: settings.histogram,
+        dims,
+        full_weights,
+        points3,
+        coords: Vec::new(),
+        level_size: [0; 3],
+        weights: None,
+        blend: Vec::new(),
+    };
+    let levels = run_levels(&mut volume, &uniq, &pca, s, backend, progress)?.len();
+    // The blend is done with; freed before the colour and the per-view
+    // split, which are the peak.
+    volume.blend = Vec::new();
+    let coords = std::mem::take(&mut volume.coords);
+    let weights = volume.weights.take().expect("at least one level");
+    let colour = blend(voxels, m, 3, |i, j| {
+        let c = coords[i * m + j];
+        (
+            weights.at(j, i),
+            views[j].exemplar.get(c[0] as usize, c[1] as usize),
+        )
+    });
+    let per_view = (0..m)
+        .map(|j| coords.iter().skip(j).step_by(m).copied().collect())
+        .collect();
+    Ok(Solid {
+        size,
+        colour,
+        coords: per_view,
+        weights,
+        levels,
+        dims,
+        explained_variance: pca.explained,
+    })
+}
+
+/// Settings of a solid synthesis.
+#[derive(Clone, Debug)]
+pub struct SolidSettings {
+    /// Neighbourhood (half, 5 or 7), jitter, passes, k and seed.
+    pub base: ParallelSettings,
+    /// Strength of the histogram matching; 0 is the paper's plain method.
+    pub histogram: f32,
+    /// The memory the run may take: a larger solid is refused before any work.
+    pub budget: crate::budget::Budget,
+}
+
+/// Default strength of the histogram matching: strong enough that solids
+/// keep about two thirds of their exemplar's contrast instead of a third,
+/// weak enough not to turn to grain (ARCHITECTURE §11).
+pub const HISTOGRAM: f32 = 4.0;
+
+impl Default for SolidSettings {
+    fn default() -> Self {
+        Self {
+            base: ParallelSettings {
+                neighbourhood: Neighbourhood::Half,
+                ..ParallelSettings::default()
+            },
+            histogram: HISTOGRAM,
+            budget: crate::budget::Budget::default(),
+        }
+    }
+}
+
+/// A map replayed through a solid's coordinates (§5.5): per voxel
+/// `Σ Wʲ·Mʲ(Sʲ)`, rounded, with `channels` 1 (the map's grey) or 3; `maps`
+/// holds one map per view, each its view's exemplar size.
+pub fn replay(s: &Solid, maps: &[ColorImage], channels: usize) -> Result<Volume> {
+    ensure!(maps.len() == s.coords.len(), "one map per view");
+    ensure!(
+        channels == 1 || channels == 3,
+        "a replay has 1 or 3 channels"
+    );
+    let voxels = s.size.iter().product::<usize>();
+    let data = blend(voxels, maps.len(), channels, |i, j| {
+        let c = s.coords[j][i];
+        (
+            s.weights.at(j, i),
+            maps[j].get(c[0] as usize, c[1] as usize),
+        )
+    });
+    Volume::new(s.size, channels, data)
+}
