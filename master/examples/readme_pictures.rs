@@ -174,8 +174,15 @@ fn main() -> Result<()> {
         };
         let t = std::time::Instant::now();
         let mut backend = LocalSearch::new(Engine::default());
-        let out =
-            parallel::synth::morph(&[&a, &b], &maps, w, h, &settings, &mut backend, &texsyn::progress::Silent)?;
+        let out = parallel::synth::morph(
+            &[&a, &b],
+            &maps,
+            w,
+            h,
+            &settings,
+            &mut backend,
+            &texsyn::progress::Silent,
+        )?;
         println!("  {:.2} s", t.elapsed().as_secs_f64());
         imaging::save_color(
             &docs.join("morph.png"),

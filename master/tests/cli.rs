@@ -1159,3 +1159,151 @@ fn depth_alpha_and_source_errors_name_the_fix() {
         &["--chroma-blur", "16-bit grey", "drop --chroma-blur"],
     );
 }
+
+/// A fill from a source smaller than the photo: the photo's pixels outside
+/// the holes stay, and every hole pixel is a colour of the source.
+#[test]
+fn fill_from_a_source_smaller_than_the_photo() {
+    let dir = tempfile::tempdir().unwrap();
+    let photo = common::texture("pink_marble_color_128.png");
+    let source = common::texture("brick_gray_64.png");
+    let (w, h) = (photo.width, photo.height);
+    let mut mask = image::GrayImage::new(w as u32, h as u32);
+    for (x, y, p) in mask.enumerate_pixels_mut() {
+        let hole = (40..80).contains(&x) && (50..90).contains(&y);
+        p.0 = [if hole { 255 } else { 0 }];
+    }
+    let (pm, mm, sm, out) = (
+        dir.path().join("photo.png"),
+        dir.path().join("mask.png"),
+        dir.path().join("source.png"),
+        dir.path().join("out.png"),
+    );
+    texsyn::imaging::save_color(&pm, &photo).unwrap();
+    texsyn::imaging::save_color(&sm, &source).unwrap();
+    mask.save(&mm).unwrap();
+    common::ok(&[
+        "fill",
+        s(&pm),
+        "--mask",
+        s(&mm),
+        "--source",
+        s(&sm),
+        "-o",
+        s(&out),
+        "--quiet",
+    ]);
+    let got = texsyn::imaging::load_color(&out).unwrap();
+    let colours: std::collections::HashSet<[u8; 3]> = (0..source.height)
+        .flat_map(|y| (0..source.width).map(move |x| (x, y)))
+        .map(|(x, y)| source.get(x, y))
+        .collect();
+    for y in 0..h {
+        for x in 0..w {
+            if mask.get_pixel(x as u32, y as u32).0[0] == 255 {
+                assert!(colours.contains(&got.get(x, y)), "hole pixel ({x}, {y})");
+            } else {
+                assert_eq!(got.get(x, y), photo.get(x, y), "kept pixel ({x}, {y})");
+            }
+        }
+    }
+}
+
+/// `synth --method parallel` refuses the block method's flags instead of
+/// ignoring them.
+#[test]
+fn parallel_synthesis_refuses_the_block_method_s_flags() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("p.png");
+    let sample = assets().join("brick_color_96.png");
+    for (flag, value) in [
+        ("--block", "4"),
+        ("--levels", "100"),
+        ("--batch", "7"),
+        ("--parent-window", "3"),
+        ("--weights", "1,1"),
+        ("--metric", "l1"),
+    ] {
+        fails(
+            &[
+                "synth",
+                s(&sample),
+                "--method",
+                "parallel",
+                "--size",
+                "64x64",
+                "-o",
+                s(&out),
+                flag,
+                value,
+            ],
+            &out,
+            &[flag, "--method parallel"],
+        );
+    }
+}
+
+/// The synthesis on coordinates and solids estimate their memory and refuse
+/// what exceeds the budget before allocating it (a two-material 4096³ ramp
+/// once asked for 256 GiB before any check).
+#[test]
+fn coordinate_methods_refuse_what_exceeds_the_memory_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.png");
+    let (a, b) = (
+        assets().join("brick_color_96.png"),
+        assets().join("cracked_color_144.png"),
+    );
+    fails(
+        &[
+            "synth",
+            s(&a),
+            "--method",
+            "parallel",
+            "--size",
+            "2048x2048",
+            "-o",
+            s(&out),
+            "--max-memory",
+            "16",
+        ],
+        &out,
+        &["2048×2048", "of memory", "--max-memory", "--size"],
+    );
+    fails(
+        &[
+            "morph",
+            s(&a),
+            s(&b),
+            "--ramp",
+            "x",
+            "--size",
+            "2048x2048",
+            "-o",
+            s(&out),
+            "--max-memory",
+            "16",
+        ],
+        &out,
+        &["of memory", "--max-memory"],
+    );
+    let solid = dir.path().join("solid");
+    let (va, vb) = (format!("x={}", s(&a)), format!("2:x={}", s(&b)));
+    let o = texsyn(&[
+        "solid",
+        "--view",
+        &va,
+        "--view",
+        &vb,
+        "--ramp",
+        "x",
+        "--size",
+        "4096",
+        "-o",
+        s(&solid),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("of memory") && err.contains("--size"), "{err}");
+    assert!(!solid.join("solid.raw").exists());
+}

@@ -377,6 +377,6 @@ fn bad_input_is_refused_with_the_fix_named() {
         "-o",
         s(&common::assets()),
     ]);
-    assert!(e.contains("overwrite"), "{e}");
+    assert!(e.contains("texsyn did not write"), "{e}");
     assert!(!d("r").join("small.png").exists());
 }

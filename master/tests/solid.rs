@@ -391,7 +391,24 @@ fn bad_input_is_refused_with_the_fix_named() {
         "--size",
         "8",
     ]);
-    assert!(e.contains("cannot create the output directory"), "{e}");
+    assert!(e.contains("not a directory"), "{e}");
+    // An input inside the output set (a view of the last run's preview) is
+    // refused: the set is replaced as a whole.
+    let set = dir.path().join("set");
+    ok(&["solid", "-q", "-o", s(&set), "--view", &view, "--size", "8"]);
+    let inside = format!("xyz={}", s(&set.join("preview.png")));
+    let e = refused(&[
+        "solid",
+        "-q",
+        "-o",
+        s(&set),
+        "--view",
+        &inside,
+        "--size",
+        "8",
+    ]);
+    assert!(e.contains("inside the output directory"), "{e}");
+    assert!(set.join("solid.raw").is_file(), "the old set was not kept");
     // A header that is not a volume.
     std::fs::write(dir.path().join("bad.json"), b"{}").unwrap();
     let e = refused(

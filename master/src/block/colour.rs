@@ -19,6 +19,22 @@ pub fn rebuild(
     width: usize,
     height: usize,
 ) -> anyhow::Result<ColorImage> {
+    rebuild_except(sample, copy_map, width, height, None)
+}
+
+/// [`rebuild`], leaving black the pixels flagged in `skip` (a fill from
+/// another source keeps the photo's pixels there, and their copy-map
+/// entries point into the photo, not the source).
+pub fn rebuild_except(
+    sample: &ColorImage,
+    copy_map: &[[u32; 2]],
+    width: usize,
+    height: usize,
+    skip: Option<&[bool]>,
+) -> anyhow::Result<ColorImage> {
+    if skip.is_some_and(|k| k.len() != copy_map.len()) {
+        bail!("the kept-pixel mask does not match the copy map");
+    }
     if Some(copy_map.len()) != width.checked_mul(height) {
         bail!(
             "copy map has {} entries but the canvas is {width}x{height}",
@@ -34,6 +50,9 @@ pub fn rebuild(
     }
     let mut out = ColorImage::new(width, height);
     for (i, (&[sx, sy], px)) in copy_map.iter().zip(out.rgb.chunks_exact_mut(3)).enumerate() {
+        if skip.is_some_and(|k| k[i]) {
+            continue;
+        }
         let (sx, sy) = (sx as usize, sy as usize);
         if sx >= sample.width || sy >= sample.height {
             bail!(

@@ -36,7 +36,7 @@ pub(super) fn finish(
     // A fill from another source keeps the photo's own pixels (their copy-map
     // entries point into the photo).
     let kept = (!std::ptr::eq(plan.reference, plan.sample)).then(|| plan.known[0].clone());
-    let mut image = colour::rebuild(colour_source, &finest.copy, cw, ch)?;
+    let mut image = colour::rebuild_except(colour_source, &finest.copy, cw, ch, kept.as_deref())?;
     if let Some(kept) = &kept {
         for (i, _) in kept.iter().enumerate().filter(|(_, &k)| k) {
             let (x, y) = (i % cw, i / cw);

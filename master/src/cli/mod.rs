@@ -114,9 +114,9 @@ pub struct Common {
     /// tif, float in exr or tif, alpha not in jpg).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Block size B (odd, 1..=11).
-    #[arg(long, default_value_t = 5)]
-    pub block: usize,
+    /// Block size B (odd, 1..=11; default 5).
+    #[arg(long)]
+    pub block: Option<usize>,
     /// Neighbourhood size N (odd, larger than the block; default 11). With
     /// `synth --method parallel`: reduced (default), half, 5 or 7.
     #[arg(long, alias = "neighborhood")]
@@ -124,24 +124,24 @@ pub struct Common {
     /// Parent window M on the coarser level (odd; default covers N).
     #[arg(long)]
     pub parent_window: Option<usize>,
-    /// Pyramid levels (0 = automatic).
-    #[arg(long, default_value_t = 0)]
-    pub levels: usize,
-    /// Weights of the two neighbourhood parts, HI,LO (integers).
-    #[arg(long, default_value = "1,2")]
-    pub weights: String,
-    /// Distance metric.
-    #[arg(long, value_enum, default_value_t = MetricArg::L1)]
-    pub metric: MetricArg,
+    /// Pyramid levels (0 = automatic, the default).
+    #[arg(long)]
+    pub levels: Option<usize>,
+    /// Weights of the two neighbourhood parts, HI,LO (integers; default 1,2).
+    #[arg(long)]
+    pub weights: Option<String>,
+    /// Distance metric (default l1).
+    #[arg(long, value_enum)]
+    pub metric: Option<MetricArg>,
     /// Make the output tile seamlessly (toroidal canvas).
     #[arg(long)]
     pub tileable: bool,
     /// Random seed (seed patch, noise).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Deterministic batch size K (1 = the paper's strict block order).
-    #[arg(long, default_value_t = 16)]
-    pub batch: usize,
+    /// Deterministic batch size K (1 = the paper's strict block order; default 16).
+    #[arg(long)]
+    pub batch: Option<usize>,
     /// Chroma blur radius at patch borders (0 = off).
     #[arg(long, default_value_t = 0)]
     pub chroma_blur: usize,
@@ -309,8 +309,9 @@ impl TryFrom<&Common> for Config {
     type Error = anyhow::Error;
 
     fn try_from(c: &Common) -> Result<Self> {
+        let d = Config::default();
         let cfg = Config {
-            block: c.block,
+            block: c.block.unwrap_or(d.block),
             neighbourhood: match c.neighbourhood.as_deref() {
                 None => 11,
                 Some(n) => n.trim().parse().with_context(|| {
@@ -318,15 +319,19 @@ impl TryFrom<&Common> for Config {
                 })?,
             },
             parent_window: c.parent_window,
-            levels: c.levels,
-            weights: parse_weights(&c.weights)?,
+            levels: c.levels.unwrap_or(d.levels),
+            weights: match &c.weights {
+                Some(w) => parse_weights(w)?,
+                None => d.weights,
+            },
             metric: match c.metric {
-                MetricArg::L1 => Metric::L1,
-                MetricArg::L2 => Metric::L2,
+                None => d.metric,
+                Some(MetricArg::L1) => Metric::L1,
+                Some(MetricArg::L2) => Metric::L2,
             },
             tileable: c.tileable,
             seed: c.seed,
-            batch: c.batch,
+            batch: c.batch.unwrap_or(d.batch),
             chroma_blur: c.chroma_blur,
             level_samples: Vec::new(),
             colour_search: c.colour_search,
@@ -555,16 +560,26 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Synth(a) if matches!(a.method, MethodArg::Parallel) => {
             check_distinct(&[("input", &a.input)], &a.common)?;
             let c = &a.common;
-            ensure!(
-                a.level_samples.is_empty()
-                    && !c.tileable
-                    && !c.colour_search
-                    && c.chroma_blur == 0
-                    && c.stitch == StitchArg::Hard
-                    && c.levels_dir.is_none()
-                    && c.report.is_none(),
-                "--method parallel takes --neighbourhood, --jitter, --seed, --threads, --coords (--copy-map) and the cluster flags; drop the block method's --level-sample, --tileable, --colour-search, --chroma-blur, --stitch, --levels-dir and --report"
-            );
+            let block_flags = [
+                ("--block", c.block.is_some()),
+                ("--levels", c.levels.is_some()),
+                ("--weights", c.weights.is_some()),
+                ("--metric", c.metric.is_some()),
+                ("--batch", c.batch.is_some()),
+                ("--parent-window", c.parent_window.is_some()),
+                ("--level-sample", !a.level_samples.is_empty()),
+                ("--tileable", c.tileable),
+                ("--colour-search", c.colour_search),
+                ("--chroma-blur", c.chroma_blur != 0),
+                ("--stitch", c.stitch != StitchArg::Hard),
+                ("--levels-dir", c.levels_dir.is_some()),
+                ("--report", c.report.is_some()),
+            ];
+            if let Some((flag, _)) = block_flags.iter().find(|(_, given)| *given) {
+                anyhow::bail!(
+                    "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --seed, --coords and the run flags)"
+                );
+            }
             let args = ParallelArgs {
                 neighbourhood: c.neighbourhood.clone().unwrap_or_else(|| "reduced".into()),
                 jitter: a.jitter.clone().unwrap_or_else(|| "0.4".into()),

@@ -104,6 +104,7 @@ impl ParallelArgs {
             neighbourhood: parse_neighbourhood(&self.neighbourhood)?,
             jitter: parse_jitter(&self.jitter)?,
             seed: self.seed,
+            budget: self.run.budget(),
             ..ParallelSettings::default()
         })
     }
@@ -235,13 +236,14 @@ pub fn run_morph(a: &MorphArgs) -> Result<()> {
 /// depth and channels, with no search.
 pub fn run_replay(a: &ReplayArgs) -> Result<()> {
     let (w, h, coords) = imaging::load_coord_map(&a.coords)?;
-    std::fs::create_dir_all(&a.output)
-        .with_context(|| format!("cannot create the output directory {}", a.output.display()))?;
+    let mut inputs: Vec<(&str, &Path)> = vec![("--coords", a.coords.as_path())];
+    inputs.extend(a.maps.iter().map(|p| ("map", p.as_path())));
+    let out_dir = imaging::OutputDir::create(&a.output, &inputs)?;
     let (most_x, most_y) = coords
         .iter()
         .fold((0, 0), |(x, y), c| (x.max(c[0]), y.max(c[1])));
-    // Every map is checked and replayed before any is written, so a bad
-    // one leaves the output directory as it was.
+    // The maps go into a temporary directory put in place at the end, so a
+    // bad one leaves the output directory as it was.
     let mut names = std::collections::HashSet::new();
     let mut replayed = Vec::with_capacity(a.maps.len());
     for p in &a.maps {
@@ -253,13 +255,7 @@ pub fn run_replay(a: &ReplayArgs) -> Result<()> {
             "two maps are named {}; replay writes each under its file name, so rename one",
             name.to_string_lossy()
         );
-        let target = a.output.join(name);
-        ensure!(
-            target.canonicalize().ok() != p.canonicalize().ok(),
-            "replaying {} would overwrite it; choose another -o directory",
-            p.display()
-        );
-        imaging::check_writable(&target)?;
+        let target = out_dir.path().join(name);
         let map = imaging::load_image(p)?;
         ensure!(
             (most_x as usize) < map.width && (most_y as usize) < map.height,
@@ -273,8 +269,9 @@ pub fn run_replay(a: &ReplayArgs) -> Result<()> {
     }
     for (target, image) in &replayed {
         imaging::save_image(target, image)?;
-        tracing::info!(out = %target.display(), "replayed");
     }
+    out_dir.commit()?;
+    tracing::info!(out = %a.output.display(), maps = replayed.len(), "replayed");
     Ok(())
 }
 

@@ -203,6 +203,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
         jitter: parse_jitter(&a.jitter)?,
         seed: a.seed,
         passes: a.passes,
+        budget: a.run.budget(),
         ..ParallelSettings::default()
     };
     ensure!(
@@ -229,7 +230,6 @@ pub fn run(a: &SolidArgs) -> Result<()> {
             r.name
         );
     }
-    let budget = a.run.budget();
     let materials = specs.iter().map(|v| v.material).max().unwrap_or(0) + 1;
     let ramp = a
         .ramp
@@ -254,30 +254,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
         a.weight_volumes.len()
     );
 
-    // Outputs: checked before any work, never an input.
-    std::fs::create_dir_all(&a.output)
-        .with_context(|| format!("cannot create the output directory {}", a.output.display()))?;
-    let mut outputs = vec![
-        a.output.join("solid.raw"),
-        a.output.join("solid.json"),
-        a.output.join("preview.png"),
-    ];
-    for r in &replays {
-        for ext in ["raw", "json"] {
-            outputs.push(a.output.join(format!("{}.{ext}", r.name)));
-        }
-        outputs.push(a.output.join(format!("{}_preview.png", r.name)));
-    }
-    for p in &outputs {
-        imaging::check_writable_any(p)?;
-    }
-    let slice_dir = a.output.join("slices");
-    if !slices.is_empty() {
-        std::fs::create_dir_all(&slice_dir).with_context(|| {
-            format!("cannot create the slice directory {}", slice_dir.display())
-        })?;
-    }
-    let out_refs: Vec<(&str, &Path)> = outputs.iter().map(|p| ("-o", p.as_path())).collect();
+    // Outputs: a directory written whole at the end, never holding an input.
     let mut in_refs: Vec<(&str, &Path)> =
         specs.iter().map(|v| ("--view", v.path.as_path())).collect();
     in_refs.extend(
@@ -288,7 +265,14 @@ pub fn run(a: &SolidArgs) -> Result<()> {
     for r in &replays {
         in_refs.extend(r.paths.iter().map(|p| ("--replay", p.as_path())));
     }
-    crate::imaging::paths::check_files(&out_refs, &in_refs, None)?;
+    let out_dir = imaging::OutputDir::create(&a.output, &in_refs)?;
+    let dir = out_dir.path().to_path_buf();
+    let slice_dir = dir.join("slices");
+    if !slices.is_empty() {
+        std::fs::create_dir_all(&slice_dir).with_context(|| {
+            format!("cannot create the slice directory {}", slice_dir.display())
+        })?;
+    }
 
     // Inputs: each distinct file read once.
     let mut files: Vec<(PathBuf, ColorImage)> = Vec::new();
@@ -373,7 +357,6 @@ pub fn run(a: &SolidArgs) -> Result<()> {
     let settings = SolidSettings {
         base,
         histogram: a.histogram,
-        budget,
     };
     let pool = a.run.pool()?;
     let largest = files
@@ -408,13 +391,7 @@ pub fn run(a: &SolidArgs) -> Result<()> {
         "seconds": seconds,
     });
     let colour = Volume::new(size, 3, std::mem::take(&mut out.colour))?;
-    write_volume(
-        &colour,
-        &a.output,
-        "solid",
-        "preview.png",
-        Some(info.clone()),
-    )?;
+    write_volume(&colour, &dir, "solid", "preview.png", Some(info.clone()))?;
     for axis in &slices {
         colour.save_slices(&slice_dir, *axis)?;
     }
@@ -422,12 +399,13 @@ pub fn run(a: &SolidArgs) -> Result<()> {
         let v = solid::replay(&out, maps, *channels)?;
         write_volume(
             &v,
-            &a.output,
+            &dir,
             name,
             &format!("{name}_preview.png"),
             Some(info.clone()),
         )?;
     }
+    out_dir.commit()?;
     if !a.run.quiet {
         eprintln!(
             "wrote {} ({}×{}×{}, {} levels, {seconds:.2} s)",

@@ -74,7 +74,7 @@ pub fn check_output_dir(target: &Path, inputs: &[(&str, &Path)]) -> Result<()> {
 
 impl OutputDir {
     /// Starts a directory output at `target` (checked with
-    /// [`check_output_dir`]); the parent directory must exist.
+    /// [`check_output_dir`]), creating its missing parents.
     pub fn create(target: &Path, inputs: &[(&str, &Path)]) -> Result<Self> {
         static COUNTER: AtomicU64 = AtomicU64::new(0);
         check_output_dir(target, inputs)?;
@@ -82,13 +82,13 @@ impl OutputDir {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
         };
-        if !parent.is_dir() {
-            bail!(
-                "the directory {} of -o {} does not exist; create it first",
+        fs::create_dir_all(&parent).with_context(|| {
+            format!(
+                "cannot create the directory {} of -o {}",
                 parent.display(),
                 target.display()
-            );
-        }
+            )
+        })?;
         let name = target.file_name().unwrap_or_default().to_string_lossy();
         let tmp = parent.join(format!(
             ".{name}.tmp-{}-{}",

@@ -27,6 +27,8 @@ pub struct ParallelSettings {
     /// k of the k-coherence candidate sets.
     pub k: usize,
     pub seed: u64,
+    /// The memory the run may take: a larger output is refused before any work.
+    pub budget: crate::budget::Budget,
 }
 
 impl Default for ParallelSettings {
@@ -37,6 +39,7 @@ impl Default for ParallelSettings {
             passes: 2,
             k: 4,
             seed: 1,
+            budget: crate::budget::Budget::default(),
         }
     }
 }

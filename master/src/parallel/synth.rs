@@ -76,6 +76,15 @@ pub fn morph(
         "every weight map must be {width}×{height}"
     );
     let pca = Pca::fit(exemplars)?;
+    let need = memory_needed(width, height, exemplars, pca.components.len(), s);
+    s.budget.check(
+        &format!(
+            "a {width}×{height} synthesis on coordinates from {} exemplar(s)",
+            exemplars.len()
+        ),
+        need,
+        "choose a smaller --size",
+    )?;
     let mut plane = Plane {
         exemplars,
         weights,
@@ -100,6 +109,29 @@ pub fn morph(
         candidate_strides: strides,
         explained_variance: pca.explained,
     })
+}
+
+/// Bytes a `width`×`height` synthesis or morph needs at its finest level:
+/// per pixel and exemplar the coordinates three times (the level, the
+/// sub-pass's copy, the maps), the level's weight and the caller's, plus the
+/// appearance blend and the colour; per exemplar pixel its appearance, its
+/// neighbourhood table (when kept) and its candidates.
+pub fn memory_needed(
+    width: usize,
+    height: usize,
+    exemplars: &[&ColorImage],
+    dims: usize,
+    s: &ParallelSettings,
+) -> u64 {
+    let pixels = width as u64 * height as u64;
+    let m = exemplars.len() as u64;
+    let points = s.neighbourhood.points().len() as u64;
+    let per_exemplar_pixel = 4 * dims as u64 * (1 + points) + 8 * s.k as u64;
+    let exemplar_pixels: u64 = exemplars
+        .iter()
+        .map(|e| e.width as u64 * e.height as u64)
+        .sum();
+    pixels * (32 * m + 4 * dims as u64 + 3) + exemplar_pixels * per_exemplar_pixel
 }
 
 /// The weighted colour `Σ Wʲ·Eʲ(Sʲ(P))`, rounded to the nearest level.

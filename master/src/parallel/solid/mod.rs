@@ -138,6 +138,38 @@ pub fn synthesize(
         check_exemplar(v.exemplar, &format!("the view across {}", v.axis.name()))?;
     }
     let voxels = size.iter().product::<usize>();
+    // Views that share an exemplar share its levels and candidate sets.
+    let mut uniq: Vec<&ColorImage> = Vec::new();
+    let view_ex: Vec<usize> = views
+        .iter()
+        .map(|v| {
+            match uniq.iter().position(|u| {
+                (u.width, u.height) == (v.exemplar.width, v.exemplar.height)
+                    && u.rgb == v.exemplar.rgb
+            }) {
+                Some(k) => k,
+                None => {
+                    uniq.push(v.exemplar);
+                    uniq.len() - 1
+                }
+            }
+        })
+        .collect();
+    let pca = Pca::fit(&uniq)?;
+    let dims = pca.components.len();
+    let need = memory_needed(size, views.len(), materials, dims);
+    s.budget.check(
+        &format!(
+            "a {}×{}×{} solid with {} views",
+            size[0],
+            size[1],
+            size[2],
+            views.len()
+        ),
+        need,
+        "choose a smaller --size",
+    )?;
+    // Only now, with the memory checked, the full-size weights.
     let full_weights: Option<Vec<Vec<f32>>> = match weights {
         MaterialWeights::Single => {
             ensure!(
@@ -167,37 +199,6 @@ pub fn synthesize(
             Some(v)
         }
     };
-    // Views that share an exemplar share its levels and candidate sets.
-    let mut uniq: Vec<&ColorImage> = Vec::new();
-    let view_ex: Vec<usize> = views
-        .iter()
-        .map(|v| {
-            match uniq.iter().position(|u| {
-                (u.width, u.height) == (v.exemplar.width, v.exemplar.height)
-                    && u.rgb == v.exemplar.rgb
-            }) {
-                Some(k) => k,
-                None => {
-                    uniq.push(v.exemplar);
-                    uniq.len() - 1
-                }
-            }
-        })
-        .collect();
-    let pca = Pca::fit(&uniq)?;
-    let dims = pca.components.len();
-    let need = memory_needed(size, views.len(), materials, dims);
-    settings.budget.check(
-        &format!(
-            "a {}×{}×{} solid with {} views",
-            size[0],
-            size[1],
-            size[2],
-            views.len()
-        ),
-        need,
-        "choose a smaller --size",
-    )?;
     let m = views.len();
     let points = s.neighbourhood.points();
     // Each view's neighbourhood points as voxel offsets in its plane (eq. 5).
@@ -268,8 +269,6 @@ pub struct SolidSettings {
     pub base: ParallelSettings,
     /// Strength of the histogram matching; 0 is the paper's plain method.
     pub histogram: f32,
-    /// The memory the run may take: a larger solid is refused before any work.
-    pub budget: crate::budget::Budget,
 }
 
 /// Default strength of the histogram matching: strong enough that solids
@@ -285,7 +284,6 @@ impl Default for SolidSettings {
                 ..ParallelSettings::default()
             },
             histogram: HISTOGRAM,
-            budget: crate::budget::Budget::default(),
         }
     }
 }

@@ -89,10 +89,8 @@ fn memory_grows_with_the_voxels_and_a_solid_too_large_is_refused_first() {
         exemplar: &e,
         material: 0,
     }];
-    let settings = SolidSettings {
-        budget: crate::budget::Budget { cap: Some(1 << 20) },
-        ..SolidSettings::default()
-    };
+    let mut settings = SolidSettings::default();
+    settings.base.budget = crate::budget::Budget { cap: Some(1 << 20) };
     let mut b = crate::search::LocalSearch::new(texsyn_engine::Engine::default());
     let err = synthesize(
         &views,
