@@ -1,0 +1,230 @@
+//! The flags of `fill`, `extend` and `synth` and the block method's
+//! [`Config`] they make (checked by [`Config::validate`]).
+
+use std::path::PathBuf;
+
+use anyhow::{ensure, Context, Result};
+use clap::{Args, ValueEnum};
+use texsyn_engine::{Metric, Weights};
+
+use super::RunArgs;
+use crate::block::{self, Config, Position};
+use crate::imaging;
+
+#[derive(Args, Debug, Clone)]
+pub struct Common {
+    /// Output image (png, jpg, tif, bmp, webp, exr); written atomically, at the
+    /// input's depth and channels (the format must hold them: 16-bit in png or
+    /// tif, float in exr or tif, alpha not in jpg).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Block size B (odd, 1..=11; default 5).
+    #[arg(long)]
+    pub block: Option<usize>,
+    /// Neighbourhood size N (odd, larger than the block; default 11). With
+    /// `synth --method parallel`: reduced (default), half, 5 or 7.
+    #[arg(long, alias = "neighborhood")]
+    pub neighbourhood: Option<String>,
+    /// Parent window M on the coarser level (odd; default covers N).
+    #[arg(long)]
+    pub parent_window: Option<usize>,
+    /// Pyramid levels (0 = automatic, the default).
+    #[arg(long)]
+    pub levels: Option<usize>,
+    /// Weights of the two neighbourhood parts, HI,LO (integers; default 1,2).
+    #[arg(long)]
+    pub weights: Option<String>,
+    /// Distance metric (default l1).
+    #[arg(long, value_enum)]
+    pub metric: Option<MetricArg>,
+    /// Make the output tile seamlessly (toroidal canvas).
+    #[arg(long)]
+    pub tileable: bool,
+    /// Random seed (seed patch, noise).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Deterministic batch size K (1 = the paper's strict block order; default 16).
+    #[arg(long)]
+    pub batch: Option<usize>,
+    /// Chroma blur radius at patch borders (0 = off).
+    #[arg(long, default_value_t = 0)]
+    pub chroma_blur: usize,
+    /// How a copied block meets the pixels around it: `hard` (the block's square
+    /// edge) or `path` (its reference continues into a band of up to 3
+    /// synthesised pixels, up to a minimum-error path; Somol–Haindl).
+    #[arg(long, value_enum, default_value_t = StitchArg::Hard)]
+    pub stitch: StitchArg,
+    /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
+    /// textures whose structure and colour disagree. Runs on this machine.
+    #[arg(long)]
+    pub colour_search: bool,
+    /// Also write the copy map: a 16-bit RGB PNG with R = source x, G =
+    /// source y (exact; `texsyn replay` reads it).
+    #[arg(long, alias = "coords")]
+    pub copy_map: Option<PathBuf>,
+    /// Also write each level's luminance into this directory.
+    #[arg(long)]
+    pub levels_dir: Option<PathBuf>,
+    /// Also write a JSON run report.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    #[command(flatten)]
+    pub run: RunArgs,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StitchArg {
+    Hard,
+    Path,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+pub enum MetricArg {
+    L1,
+    L2,
+}
+
+#[derive(Args, Debug)]
+pub struct FillArgs {
+    /// The image with holes.
+    pub input: PathBuf,
+    /// Mask image of the same size: white = fill, black = keep (a pixel is a
+    /// hole when its luminance times its opacity is at least half the range;
+    /// 8- or 16-bit).
+    #[arg(long, required_unless_present = "mask_from_alpha")]
+    pub mask: Option<PathBuf>,
+    /// Take the holes from the image's own alpha channel: a pixel is a hole
+    /// where its alpha is below half the range (128 of 255, 32768 of 65535, 0.5).
+    #[arg(long, conflicts_with = "mask")]
+    pub mask_from_alpha: bool,
+    /// Fill from this image instead of the photo itself: the search and the
+    /// copies use only it (converted to the photo's depth and channels).
+    #[arg(long)]
+    pub source: Option<PathBuf>,
+    /// Copy only from the white part of the --source (same size as the source;
+    /// read like --mask).
+    #[arg(long, requires = "source")]
+    pub source_mask: Option<PathBuf>,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Args, Debug)]
+pub struct ExtendArgs {
+    /// The sample texture.
+    pub input: PathBuf,
+    /// Canvas size WxH.
+    #[arg(long)]
+    pub size: String,
+    /// Where the sample goes: center or X,Y (top-left corner).
+    #[arg(long, default_value = "center")]
+    pub position: String,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Args, Debug)]
+pub struct SynthArgs {
+    /// The sample texture.
+    pub input: PathBuf,
+    /// Output size WxH.
+    #[arg(long)]
+    pub size: String,
+    /// grow: from a seeded sample patch; scanline: Stahlhut's full synthesis;
+    /// parallel: pixels on exemplar coordinates (Lefebvre–Hoppe, Manke–Wünsche).
+    #[arg(long, value_enum, default_value_t = MethodArg::Grow)]
+    pub method: MethodArg,
+    /// --method parallel: jitter strength r in [0, 1], or one per level,
+    /// coarsest first (r1,r2,...).
+    #[arg(long)]
+    pub jitter: Option<String>,
+    /// Texture mixing: use FILE as the sample of pyramid level L (0 = finest), as L=FILE.
+    #[arg(long = "level-sample", value_name = "L=FILE")]
+    pub level_samples: Vec<String>,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+pub enum MethodArg {
+    Grow,
+    Scanline,
+    Parallel,
+}
+
+fn parse_weights(s: &str) -> Result<Weights> {
+    let (a, b) = s
+        .split_once(',')
+        .with_context(|| format!("weights '{s}' are not HI,LO, e.g. --weights 1,2"))?;
+    let hi: u32 = a
+        .trim()
+        .parse()
+        .with_context(|| format!("weight '{a}' is not a whole number"))?;
+    let lo: u32 = b
+        .trim()
+        .parse()
+        .with_context(|| format!("weight '{b}' is not a whole number"))?;
+    Ok(Weights::new(hi, lo)?)
+}
+
+pub(super) fn parse_position(s: &str) -> Result<Position> {
+    if s.eq_ignore_ascii_case("center") || s.eq_ignore_ascii_case("centre") {
+        return Ok(Position::Center);
+    }
+    let (x, y) = s
+        .split_once(',')
+        .with_context(|| format!("position '{s}' is not 'center' or X,Y, e.g. --position 10,20"))?;
+    let coordinate = |name: &str, v: &str| -> Result<usize> {
+        let n: u64 = v.trim().parse().with_context(|| {
+            format!("{name} '{v}' in --position '{s}' is not a whole number ≥ 0")
+        })?;
+        ensure!(
+            n < imaging::MAX_SIDE as u64,
+            "{name} {n} in --position '{s}' is outside any canvas (at most {} pixels per side); give X,Y inside the --size canvas",
+            imaging::MAX_SIDE
+        );
+        Ok(n as usize)
+    };
+    Ok(Position::At(coordinate("x", x)?, coordinate("y", y)?))
+}
+
+impl TryFrom<&Common> for Config {
+    type Error = anyhow::Error;
+
+    fn try_from(c: &Common) -> Result<Self> {
+        let d = Config::default();
+        let cfg = Config {
+            block: c.block.unwrap_or(d.block),
+            neighbourhood: match c.neighbourhood.as_deref() {
+                None => 11,
+                Some(n) => n.trim().parse().with_context(|| {
+                    format!("--neighbourhood '{n}' is not a whole number; names like reduced or half belong to --method parallel")
+                })?,
+            },
+            parent_window: c.parent_window,
+            levels: c.levels.unwrap_or(d.levels),
+            weights: match &c.weights {
+                Some(w) => parse_weights(w)?,
+                None => d.weights,
+            },
+            metric: match c.metric {
+                None => d.metric,
+                Some(MetricArg::L1) => Metric::L1,
+                Some(MetricArg::L2) => Metric::L2,
+            },
+            tileable: c.tileable,
+            seed: c.seed,
+            batch: c.batch.unwrap_or(d.batch),
+            chroma_blur: c.chroma_blur,
+            level_samples: Vec::new(),
+            colour_search: c.colour_search,
+            stitch: match c.stitch {
+                StitchArg::Hard => block::Stitch::Hard,
+                StitchArg::Path => block::Stitch::Path,
+            },
+        };
+        cfg.validate()?;
+        Ok(cfg)
+    }
+}
+
