@@ -236,9 +236,9 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
     let (width, height) = parse_size(&a.size)?;
     let mut level_files = Vec::new();
     for spec in &a.level_samples {
-        let (l, file) = spec.split_once('=').with_context(|| {
-            format!("--level-sample '{spec}' is not L=FILE, e.g. 0=detail.png")
-        })?;
+        let (l, file) = spec
+            .split_once('=')
+            .with_context(|| format!("--level-sample '{spec}' is not L=FILE, e.g. 0=detail.png"))?;
         let l: usize = l
             .trim()
             .parse()

@@ -227,4 +227,3 @@ impl TryFrom<&Common> for Config {
         Ok(cfg)
     }
 }
-

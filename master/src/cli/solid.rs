@@ -1,8 +1,7 @@
 //! `texsyn solid`: solid textures from 2-D views (ARCHITECTURE §11) from the
 //! command line.
 
-use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::path::PathBuf;
 
 use anyhow::{bail, ensure, Context, Result};
 use clap::Args;
@@ -10,13 +9,11 @@ use clap::Args;
 use super::parallel::{parse_jitter, parse_neighbourhood};
 use super::progress::Bars;
 use super::RunArgs;
-use crate::imaging::volume::{Axis, Volume};
-use crate::imaging::{self, ColorImage};
-use crate::parallel::solid::{self, MaterialWeights, SolidSettings, View};
+use crate::imaging::volume::Axis;
+use crate::parallel::solid::{
+    self, ReplayFiles, SolidJob, SolidSettings, ViewFile, WeightFiles, MAX_EDGE,
+};
 use crate::parallel::synth::ParallelSettings;
-
-/// Largest edge of a solid.
-pub const MAX_EDGE: usize = 4096;
 
 #[derive(Args, Debug)]
 pub struct SolidArgs {
@@ -70,16 +67,8 @@ pub struct SolidArgs {
     pub run: RunArgs,
 }
 
-/// One parsed `[M:]AXES=PATH`.
-#[derive(Clone, Debug, PartialEq)]
-struct ViewSpec {
-    material: usize,
-    axis: Axis,
-    path: PathBuf,
-}
-
 /// Parses `[M:]AXES=PATH` into one spec per axis.
-fn parse_view(s: &str, flag: &str) -> Result<Vec<ViewSpec>> {
+fn parse_view(s: &str, flag: &str) -> Result<Vec<ViewFile>> {
     let (lhs, path) = s.split_once('=').with_context(|| {
         format!(
             "{flag} '{s}' is not [M:]AXES=IMAGE, e.g. {flag} xyz=marble.png or {flag} 2:z=moss.png"
@@ -101,7 +90,7 @@ fn parse_view(s: &str, flag: &str) -> Result<Vec<ViewSpec>> {
         !axes.trim().is_empty(),
         "{flag} '{s}' names no axis; give x, y, z or a combination such as xyz"
     );
-    let mut out: Vec<ViewSpec> = Vec::new();
+    let mut out: Vec<ViewFile> = Vec::new();
     for c in axes.trim().chars() {
         let axis = Axis::parse(c)
             .with_context(|| format!("'{c}' in {flag} '{s}' is not an axis; use x, y or z"))?;
@@ -109,7 +98,7 @@ fn parse_view(s: &str, flag: &str) -> Result<Vec<ViewSpec>> {
             out.iter().all(|v| v.axis != axis),
             "{flag} '{s}' names axis {c} twice"
         );
-        out.push(ViewSpec {
+        out.push(ViewFile {
             material,
             axis,
             path: PathBuf::from(path),
@@ -147,14 +136,7 @@ fn parse_slices(s: &str) -> Result<Vec<Axis>> {
     })
 }
 
-/// A `--replay` argument resolved to one map path per view.
-struct Replay {
-    name: String,
-    /// Per view, the map's path.
-    paths: Vec<PathBuf>,
-}
-
-fn parse_replay(s: &str, views: &[ViewSpec]) -> Result<Replay> {
+fn parse_replay(s: &str, views: &[ViewFile]) -> Result<ReplayFiles> {
     let paths: Vec<PathBuf> = if s.contains('=') {
         let mut specs = Vec::new();
         for part in s.split(',') {
@@ -184,250 +166,79 @@ fn parse_replay(s: &str, views: &[ViewSpec]) -> Result<Replay> {
         .map(|n| n.to_string_lossy().into_owned())
         .filter(|n| !n.is_empty())
         .with_context(|| format!("--replay '{s}' names no file"))?;
-    ensure!(
-        name != "solid" && name != "preview" && name != "slices",
-        "--replay map '{name}' would overwrite the solid's own output; rename the map"
-    );
-    Ok(Replay { name, paths })
+    Ok(ReplayFiles { name, paths })
+}
+
+impl TryFrom<&SolidArgs> for SolidJob {
+    type Error = anyhow::Error;
+
+    fn try_from(a: &SolidArgs) -> Result<Self> {
+        let mut views = Vec::new();
+        for v in &a.views {
+            views.extend(parse_view(v, "--view")?);
+        }
+        let base = ParallelSettings {
+            neighbourhood: parse_neighbourhood(&a.neighbourhood)?,
+            jitter: parse_jitter(&a.jitter)?,
+            seed: a.seed,
+            passes: a.passes,
+            budget: a.run.budget(),
+            ..ParallelSettings::default()
+        };
+        let replays = a
+            .replay
+            .iter()
+            .map(|r| parse_replay(r, &views))
+            .collect::<Result<Vec<_>>>()?;
+        let weights = match (&a.ramp, a.weight_volumes.is_empty()) {
+            (Some(r), _) => {
+                let mut c = r.trim().chars();
+                match (c.next().and_then(Axis::parse), c.next()) {
+                    (Some(axis), None) => WeightFiles::Ramp(axis),
+                    _ => bail!("--ramp '{r}' is not x, y or z"),
+                }
+            }
+            (None, false) => WeightFiles::Volumes(a.weight_volumes.clone()),
+            (None, true) => WeightFiles::Single,
+        };
+        let job = SolidJob {
+            views,
+            size: parse_size3(&a.size)?,
+            settings: SolidSettings {
+                base,
+                histogram: a.histogram,
+            },
+            weights,
+            slices: parse_slices(&a.slices)?,
+            replays,
+            output: a.output.clone(),
+        };
+        job.validate()?;
+        Ok(job)
+    }
 }
 
 /// `texsyn solid`.
 pub fn run(a: &SolidArgs) -> Result<()> {
-    let size = parse_size3(&a.size)?;
-    let mut specs = Vec::new();
-    for v in &a.views {
-        specs.extend(parse_view(v, "--view")?);
-    }
-    let base = ParallelSettings {
-        neighbourhood: parse_neighbourhood(&a.neighbourhood)?,
-        jitter: parse_jitter(&a.jitter)?,
-        seed: a.seed,
-        passes: a.passes,
-        budget: a.run.budget(),
-        ..ParallelSettings::default()
-    };
-    ensure!(
-        a.histogram.is_finite() && (0.0..=100.0).contains(&a.histogram),
-        "--histogram {} must be in [0, 100] (0: the paper's plain method)",
-        a.histogram
-    );
-    ensure!(
-        (1..=64).contains(&a.passes),
-        "--passes {} must be in 1..=64",
-        a.passes
-    );
-    let slices = parse_slices(&a.slices)?;
-    let replays = a
-        .replay
-        .iter()
-        .map(|r| parse_replay(r, &specs))
-        .collect::<Result<Vec<_>>>()?;
-    let mut names = std::collections::HashSet::new();
-    for r in &replays {
-        ensure!(
-            names.insert(r.name.clone()),
-            "two --replay maps are named {}; rename one",
-            r.name
-        );
-    }
-    let materials = specs.iter().map(|v| v.material).max().unwrap_or(0) + 1;
-    let ramp = a
-        .ramp
-        .as_deref()
-        .map(|r| {
-            let mut c = r.trim().chars();
-            match (c.next().and_then(Axis::parse), c.next()) {
-                (Some(axis), None) => Ok(axis),
-                _ => bail!("--ramp '{r}' is not x, y or z"),
-            }
-        })
-        .transpose()?;
-    if materials > 1 {
-        ensure!(
-            ramp.is_some() || !a.weight_volumes.is_empty(),
-            "a morph of {materials} materials needs --ramp x|y|z or --weight-volumes W1.json,W2.json,..."
-        );
-    }
-    ensure!(
-        a.weight_volumes.is_empty() || a.weight_volumes.len() == materials,
-        "{} weight volumes for {materials} materials; give one per material, in order",
-        a.weight_volumes.len()
-    );
-
-    // Outputs: a directory written whole at the end, never holding an input.
-    let mut in_refs: Vec<(&str, &Path)> =
-        specs.iter().map(|v| ("--view", v.path.as_path())).collect();
-    in_refs.extend(
-        a.weight_volumes
-            .iter()
-            .map(|p| ("--weight-volumes", p.as_path())),
-    );
-    for r in &replays {
-        in_refs.extend(r.paths.iter().map(|p| ("--replay", p.as_path())));
-    }
-    let out_dir = imaging::OutputDir::create(&a.output, &in_refs)?;
-    let dir = out_dir.path().to_path_buf();
-    let slice_dir = dir.join("slices");
-    if !slices.is_empty() {
-        std::fs::create_dir_all(&slice_dir).with_context(|| {
-            format!("cannot create the slice directory {}", slice_dir.display())
-        })?;
-    }
-
-    // Inputs: each distinct file read once.
-    let mut files: Vec<(PathBuf, ColorImage)> = Vec::new();
-    let mut view_image = Vec::with_capacity(specs.len());
-    for v in &specs {
-        let k = match files.iter().position(|(p, _)| *p == v.path) {
-            Some(k) => k,
-            None => {
-                files.push((v.path.clone(), imaging::load_color(&v.path)?));
-                files.len() - 1
-            }
-        };
-        view_image.push(k);
-    }
-    let voxels = size.iter().product::<usize>();
-    let weights = if let Some(axis) = ramp {
-        MaterialWeights::Ramp(axis)
-    } else if !a.weight_volumes.is_empty() {
-        let mut vols = Vec::with_capacity(materials);
-        for p in &a.weight_volumes {
-            let (v, _) = Volume::load(p)?;
-            ensure!(
-                v.size == size && v.channels == 1,
-                "weight volume {} is {}×{}×{} with {} channels; it must be 1 channel of the solid's size {}×{}×{}",
-                p.display(),
-                v.size[0],
-                v.size[1],
-                v.size[2],
-                v.channels,
-                size[0],
-                size[1],
-                size[2]
-            );
-            vols.push(
-                v.data
-                    .iter()
-                    .map(|&b| f32::from(b) / 255.0)
-                    .collect::<Vec<f32>>(),
-            );
-        }
-        debug_assert!(vols.iter().all(|v| v.len() == voxels));
-        MaterialWeights::Volumes(vols)
-    } else {
-        MaterialWeights::Single
-    };
-    // Replay maps, checked before the synthesis.
-    let mut replay_maps: Vec<(String, usize, Vec<ColorImage>)> = Vec::new();
-    for r in &replays {
-        let mut maps = Vec::with_capacity(specs.len());
-        let mut channels = 1;
-        for (j, p) in r.paths.iter().enumerate() {
-            let map = imaging::load_image(p)?;
-            let ex = &files[view_image[j]].1;
-            ensure!(
-                (map.width, map.height) == (ex.width, ex.height),
-                "--replay map {} is {}x{}, but the view {}:{} exemplar is {}x{}; give the map of that exemplar",
-                p.display(),
-                map.width,
-                map.height,
-                specs[j].material + 1,
-                specs[j].axis.name(),
-                ex.width,
-                ex.height
-            );
-            if map.format.colour_channels() > 1 {
-                channels = 3;
-            }
-            maps.push(map.search_colour());
-        }
-        replay_maps.push((r.name.clone(), channels, maps));
-    }
-
-    let views: Vec<View> = specs
-        .iter()
-        .zip(&view_image)
-        .map(|(v, &k)| View {
-            axis: v.axis,
-            exemplar: &files[k].1,
-            material: v.material,
-        })
-        .collect();
-    let settings = SolidSettings {
-        base,
-        histogram: a.histogram,
-    };
+    let job = SolidJob::try_from(a)?;
     let pool = a.run.pool()?;
-    let largest = files
-        .iter()
-        .map(|(_, e)| e.width * e.height)
-        .max()
-        .unwrap_or(0);
-    let mut opened = a.run.open(a.seed, largest)?;
+    // Exemplar sizes are known only once read; LBG's probes are checked per level.
+    let mut opened = a.run.open(a.seed, 0)?;
     let bars = Bars::new(a.run.quiet);
-    let t = Instant::now();
-    let mut out = pool.install(|| {
-        solid::synthesize(&views, &weights, size, &settings, &mut opened.search, &bars)
-    })?;
-    let seconds = t.elapsed().as_secs_f64();
-    tracing::info!(seconds, levels = out.levels, "solid done");
-
-    let info = serde_json::json!({
-        "method": "solid (Manke–Wünsche §5)",
-        "views": specs.iter().map(|v| serde_json::json!({
-            "material": v.material + 1,
-            "axis": v.axis.name().to_string(),
-            "exemplar": v.path.display().to_string(),
-        })).collect::<Vec<_>>(),
-        "neighbourhood": a.neighbourhood,
-        "jitter": settings.base.jitter,
-        "passes": a.passes,
-        "histogram": a.histogram,
-        "seed": a.seed,
-        "levels": out.levels,
-        "appearance_components": out.dims,
-        "explained_variance": out.explained_variance,
-        "seconds": seconds,
-    });
-    let colour = Volume::new(size, 3, std::mem::take(&mut out.colour))?;
-    write_volume(&colour, &dir, "solid", "preview.png", Some(info.clone()))?;
-    for axis in &slices {
-        colour.save_slices(&slice_dir, *axis)?;
-    }
-    for (name, channels, maps) in &replay_maps {
-        let v = solid::replay(&out, maps, *channels)?;
-        write_volume(
-            &v,
-            &dir,
-            name,
-            &format!("{name}_preview.png"),
-            Some(info.clone()),
-        )?;
-    }
-    out_dir.commit()?;
+    let summary = pool.install(|| job.run(&mut opened.search, &bars))?;
     if !a.run.quiet {
+        let s = job.size;
         eprintln!(
-            "wrote {} ({}×{}×{}, {} levels, {seconds:.2} s)",
+            "wrote {} ({}×{}×{}, {} levels, {:.2} s)",
             a.output.display(),
-            size[0],
-            size[1],
-            size[2],
-            out.levels
+            s[0],
+            s[1],
+            s[2],
+            summary.levels,
+            summary.seconds
         );
     }
     Ok(())
-}
-
-fn write_volume(
-    v: &Volume,
-    dir: &Path,
-    stem: &str,
-    preview: &str,
-    info: Option<serde_json::Value>,
-) -> Result<()> {
-    v.save(dir, stem, info)?;
-    imaging::save_color(&dir.join(preview), &v.preview(4))
 }
 
 #[cfg(test)]

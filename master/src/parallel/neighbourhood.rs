@@ -20,6 +20,15 @@ pub enum Neighbourhood {
 }
 
 impl Neighbourhood {
+    /// The name the command line uses for it.
+    pub fn name(self) -> String {
+        match self {
+            Self::Reduced => "reduced".into(),
+            Self::Half => "half".into(),
+            Self::Full(n) => n.to_string(),
+        }
+    }
+
     /// Points: each a list of pixel offsets whose values are averaged.
     pub fn points(self) -> Vec<Vec<[i32; 2]>> {
         let diag = |sx: i32, sy: i32| vec![[sx, sy], [sx, 0], [0, sy]];

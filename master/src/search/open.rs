@@ -26,7 +26,8 @@ pub struct SearchOptions {
     /// Seed of LBG's training.
     pub seed: u64,
     /// Pixels of the largest sample a level is built from: more LBG probes
-    /// than such a level can have seeds are refused now.
+    /// than such a level can have seeds are refused now (0: not known yet,
+    /// not checked here).
     pub largest_sample: usize,
     /// The workers, when the run uses a cluster.
     pub cluster: Option<ClusterSetup>,
@@ -45,7 +46,9 @@ pub struct OpenSearch {
 pub fn open(o: SearchOptions) -> Result<OpenSearch> {
     let engine = Engine::with_kernel_name(&o.kernel)?;
     let lbg = LbgSearch::new(engine, o.lbg_probes, o.lbg_threshold, o.seed)?;
-    lbg.check_vectors(o.largest_sample)?;
+    if o.largest_sample > 0 {
+        lbg.check_vectors(o.largest_sample)?;
+    }
     let mut local = LocalSearch::new(engine).with_storage(Storage::from_name(&o.vector_store)?);
     if let Some(bytes) = o.max_memory {
         local = local.with_max_memory(bytes);

@@ -22,11 +22,13 @@ use crate::imaging::ColorImage;
 use crate::progress::Progress;
 use crate::search::SearchBackend;
 
+mod job;
 mod lattice;
 #[cfg(test)]
 mod tests;
 mod weights;
 
+pub use job::{ReplayFiles, SolidJob, SolidSummary, ViewFile, WeightFiles, MAX_EDGE};
 pub use lattice::{BINS, SUB_PASSES};
 pub use weights::ViewWeights;
 
