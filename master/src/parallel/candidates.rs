@@ -17,7 +17,7 @@
 //! within 2 pixels of one already taken is passed over.
 
 use anyhow::{ensure, Result};
-use texsyn_engine::{Geometry, Metric, Params, Plane, QueryBatch, Sample, Weights};
+use texsyn_engine::{Geometry, Plane, QueryBatch, Sample};
 
 use crate::search::{LevelData, SearchBackend};
 
@@ -93,8 +93,9 @@ impl Candidates {
             }
         }
         let geometry = Geometry::new(cell, 0)?;
+        let fine = Plane::new(pw, ph, &pixels, Some(&defined))?;
         let sample = Sample {
-            fine: Plane::new(pw, ph, &pixels, Some(&defined))?,
+            fine: fine.clone(),
             parent: None,
         };
         let positions = texsyn_engine::plane::reference_positions(&sample, &geometry)?;
@@ -105,19 +106,14 @@ impl Candidates {
             cells.len(),
             positions.len()
         );
-        backend.load_level(&LevelData {
+        backend.load_level(&LevelData::single_plane(
             level,
+            level + 1,
             geometry,
-            params: Params {
-                metric: Metric::L2,
-                weights: Weights::new(1, 1)?,
-            },
-            sample,
-            positions: &positions,
-            levels: level + 1,
-            expected_queries: cells.len() as u64,
-            colour_vectors: None,
-        })?;
+            fine,
+            &positions,
+            cells.len() as u64,
+        )?)?;
         let extra = (4 * k + 4).min(cells.len());
         let mut lists = Vec::with_capacity(cells.len());
         for chunk in cells.chunks(2048) {

@@ -41,7 +41,33 @@ pub struct LevelData<'a> {
     pub colour_vectors: Option<(Layout, &'a [u8])>,
 }
 
-impl LevelData<'_> {
+impl<'a> LevelData<'a> {
+    /// A single-plane level compared whole in L2 (no parent part, equal
+    /// weights): what the coordinate method's candidate sets and the ω-tile
+    /// search hand the engine.
+    pub fn single_plane(
+        level: usize,
+        levels: usize,
+        geometry: Geometry,
+        fine: texsyn_engine::Plane<'a>,
+        positions: &'a Positions,
+        expected_queries: u64,
+    ) -> Result<Self> {
+        Ok(LevelData {
+            level,
+            geometry,
+            params: Params {
+                metric: texsyn_engine::Metric::L2,
+                weights: texsyn_engine::Weights::new(1, 1)?,
+            },
+            sample: Sample { fine, parent: None },
+            positions,
+            levels,
+            expected_queries,
+            colour_vectors: None,
+        })
+    }
+
     /// A copy of the level's planes, geometry, parameters and positions (what
     /// a backend keeps to rebuild vectors later).
     pub fn owned_level(&self) -> OwnedLevel {
