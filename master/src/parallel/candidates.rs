@@ -95,7 +95,7 @@ impl Candidates {
         let geometry = Geometry::new(cell, 0)?;
         let fine = Plane::new(pw, ph, &pixels, Some(&defined))?;
         let sample = Sample {
-            fine: fine.clone(),
+            fine,
             parent: None,
         };
         let positions = texsyn_engine::plane::reference_positions(&sample, &geometry)?;
