@@ -94,10 +94,7 @@ impl Candidates {
         }
         let geometry = Geometry::new(cell, 0)?;
         let fine = Plane::new(pw, ph, &pixels, Some(&defined))?;
-        let sample = Sample {
-            fine,
-            parent: None,
-        };
+        let sample = Sample { fine, parent: None };
         let positions = texsyn_engine::plane::reference_positions(&sample, &geometry)?;
         // Row by row, so reference g is grid pixel (g mod grid_w, g / grid_w).
         ensure!(
