@@ -8,17 +8,26 @@ use crate::{block, imaging};
 /// Parses `s`, the value of `flag`, as positive numbers joined by `x` (`WxH`,
 /// `XxYxZ`); `counts` lists how many numbers are allowed, `example` shows one.
 pub fn parse_dims(s: &str, flag: &str, counts: &[usize], example: &str) -> Result<Vec<usize>> {
-    let nums = s
-        .split(['x', 'X'])
-        .map(|v| {
-            let v = v.trim();
-            match v.parse::<usize>() {
-                Ok(0) => bail!("{flag} '{s}': every side must be at least 1"),
-                Ok(n) => Ok(n),
-                Err(_) => {
-                    bail!("{flag} '{s}': '{v}' is not a positive number, e.g. {flag} {example}")
-                }
-            }
+    let parts: Vec<&str> = s.split(['x', 'X']).map(str::trim).collect();
+    // The name of each side, for the messages.
+    let side = |i: usize| match (parts.len(), i) {
+        (2, 0) => "width",
+        (2, _) => "height",
+        (3, 0) => "x edge",
+        (3, 1) => "y edge",
+        (3, _) => "z edge",
+        _ => "side",
+    };
+    let nums = parts
+        .iter()
+        .enumerate()
+        .map(|(i, v)| match v.parse::<usize>() {
+            Ok(0) => bail!("{flag} '{s}': the {} must be at least 1", side(i)),
+            Ok(n) => Ok(n),
+            Err(_) => bail!(
+                "{flag} '{s}': the {} '{v}' is not a positive number, e.g. {flag} {example}",
+                side(i)
+            ),
         })
         .collect::<Result<Vec<_>>>()?;
     ensure!(
@@ -63,5 +72,13 @@ mod tests {
             assert!(e.contains("--size"), "{bad}: {e}");
         }
         assert!(parse_size("100000x100000").is_err());
+        assert!(parse_size("ax10")
+            .unwrap_err()
+            .to_string()
+            .contains("width"));
+        assert!(parse_size("10x0")
+            .unwrap_err()
+            .to_string()
+            .contains("height"));
     }
 }
