@@ -1,19 +1,21 @@
 //! texsyn: exact texture synthesis with the nearest-neighbour search on this
 //! machine or on a cluster of workers (ARCHITECTURE §1–§2).
 //!
-//! - [`block`]: Stahlhut's multi-scale block method (plan → per level →
-//!   finish), with its canvas, block queue, neighbourhoods, pyramid and colour
-//!   rebuild.
-//! - [`search`] and [`cluster`]: the search backends a method calls, all behind
-//!   [`search::SearchBackend`]; [`launch`] starts or finds the workers.
-//! - [`imaging`] (images in and out, atomic writes) and [`ycbcr`] (the one
-//!   BT.601 conversion): shared by every method.
-//! - [`cli`]: the command line; [`cleanup`]: the temporaries removed on
-//!   SIGINT/SIGTERM.
+//! Methods, siblings that never import each other:
+//! - [`block`]: Stahlhut's multi-scale block method;
+//! - [`tiles`]: Somol–Haindl tile sets and ω-tiles;
+//! - [`parallel`]: synthesis on exemplar coordinates, morphs and solids
+//!   (Manke–Wünsche);
+//! - [`procedural`]: procedural matching and transformation (Bourque–Dudek).
 //!
-//! A new synthesis method goes into its own module beside [`block`] (for the
-//! coming ones: `tiles`, `parallel`, `procedural`), reusing `imaging`, `ycbcr`,
-//! the search backends and, where it fits, `block::pyramid`.
+//! The shared layer under them: [`pyramid`], [`filters`], [`seams`],
+//! [`imaging`] (images, colour conversion, atomic file and directory
+//! outputs, path checks), [`search`] (every method's search, opened by
+//! [`search::open`]; [`cluster`] and [`launch`] behind it), [`budget`] (the
+//! memory budget), [`progress`] (how methods report progress), [`compare`]
+//! (the measures) and [`cleanup`] (temporaries removed on SIGINT/SIGTERM).
+//! [`cli`] only parses, builds validated configs, calls the library and
+//! reports.
 
 pub mod block;
 pub mod budget;

@@ -1,5 +1,7 @@
-//! The `texsyn` command line: clap arguments turned into a validated
-//! [`Config`] and [`Mode`], progress bars, and the outputs written atomically.
+//! The `texsyn` command line: each command's flags are parsed into a
+//! validated library config, the library runs it, and the command reports
+//! (progress through [`progress::Bars`], one line on success). This module
+//! holds the command enum and the dispatch; each command has its own file.
 
 use std::time::Duration;
 
