@@ -1,4 +1,4 @@
-//! Containers (issue 12): the deploy files built and run, not only parsed.
+//! Containers: the deploy files built and run, not only parsed.
 //!
 //! The image is built the registry-free way (`deploy/docker/build-offline.sh`:
 //! this build's binaries and the libraries they load over `FROM scratch`), and

@@ -1,4 +1,4 @@
-//! Network partitions (issue 11): a worker cut off by the network mid-level.
+//! Network partitions: a worker cut off by the network mid-level.
 //!
 //! The test cluster runs inside a private network namespace: the test thread
 //! calls `unshare(CLONE_NEWNET)`, brings its loopback up, and everything it

@@ -1,4 +1,4 @@
-//! TLS between the master and its workers (ARCHITECTURE §4.4, issue 11) with
+//! TLS between the master and its workers (ARCHITECTURE §4.4) with
 //! real `texsyn` and `texsyn-worker` processes and certificates made by
 //! `openssl`: a synthesis over TLS is bit-identical to a local one; URL
 //! schemes are honoured or refused with one clear line; mutual TLS refuses a
