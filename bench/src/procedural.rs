@@ -11,7 +11,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use texsyn::imaging;
 use texsyn::procedural::catalogue::{BuildSettings, Catalogue};
-use texsyn::procedural::matching::{match_texture, recovery_trials, MatchSettings};
+use texsyn::procedural::{match_texture, recovery_trials, MatchSettings};
 use texsyn::procedural::{Kind, LIBRARY};
 
 #[derive(Args)]

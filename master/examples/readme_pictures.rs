@@ -244,7 +244,7 @@ fn main() -> Result<()> {
         )?;
     }
     if want("procedural") {
-        use texsyn::procedural::{catalogue, matching, transform};
+        use texsyn::procedural::{self as matching, catalogue, transform};
         println!("procedural: pink marble matched, then transformed into the leopard match");
         let t = std::time::Instant::now();
         let cat = catalogue::Catalogue::build(&catalogue::BuildSettings::default(), &|| {})?;

@@ -16,8 +16,8 @@ use rand::{Rng, SeedableRng};
 use texsyn::compare::{laplacian_distance, spectrum_similarity};
 use texsyn::imaging::{self, ColorImage};
 use texsyn::procedural::catalogue::{BuildSettings, Catalogue};
-use texsyn::procedural::matching::{draw, recovery_trials, MatchSettings, Pattern};
 use texsyn::procedural::shaders::by_name;
+use texsyn::procedural::{draw, recovery_trials, MatchSettings, Pattern};
 use texsyn::procedural::{Kind, LIBRARY};
 
 fn bytes(p: &Path) -> Vec<u8> {
@@ -231,10 +231,7 @@ fn match_writes_the_render_and_the_parameters_the_same_for_any_threads() {
     assert_eq!(a["shader"], "spots");
     assert_eq!(a["parameters"]["spots"], 6.0);
     let found = Pattern::from_json(&a).unwrap();
-    assert!(
-        texsyn::procedural::matching::recovered(&truth, &found, 0.05),
-        "{a}"
-    );
+    assert!(texsyn::procedural::recovered(&truth, &found, 0.05), "{a}");
     let out = imaging::load_color(&d("out_1.png")).unwrap();
     assert_eq!((out.width, out.height), (96, 80));
     // Without --params the JSON goes to stdout.

@@ -12,9 +12,9 @@ use super::{parse_size, thread_pool};
 use crate::imaging::paths;
 use crate::imaging::{self, animation, ColorImage};
 use crate::procedural::catalogue::{self, BuildSettings, Catalogue};
-use crate::procedural::matching::{match_texture, MatchResult, MatchSettings, Pattern};
 use crate::procedural::transform::{self, TransformSettings};
 use crate::procedural::LIBRARY;
+use crate::procedural::{match_texture, MatchResult, MatchSettings, Pattern};
 
 #[derive(Args, Debug)]
 #[command(args_conflicts_with_subcommands = true)]

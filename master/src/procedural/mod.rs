@@ -7,8 +7,12 @@
 //! - [`descriptor`]: the colour-free structure descriptor the catalogue
 //!   stores (§3.2.1, §3.3).
 //! - [`catalogue`]: adaptive subdivision of each parameter domain (§3.2.1).
-//! - [`matching`]: global search by admissibility, Nelder–Mead refinement
-//!   (§3.2).
+//! - [`pattern`]: a shader with parameters and colours, rendered (§3.1).
+//! - [`colour`]: the closed-form two-colour fit (§3.2).
+//! - [`objective`]: what the local search minimises (§3.2.2).
+//! - [`search`]: global search by admissibility (§3.2.1), then [`local`]:
+//!   Nelder–Mead refinement, sweeps and whole-number steps (§3.2.2).
+//! - [`recovery`]: synthetic targets recovered, for tests and benches.
 //! - [`transform`]: paths within a shader, key-textures and jump points
 //!   between shaders (§4).
 //!
@@ -16,13 +20,21 @@
 //! [`crate::compare`], shared with `texsyn compare`.
 
 pub mod catalogue;
+pub mod colour;
 pub mod descriptor;
-pub mod matching;
+pub mod local;
+pub mod objective;
+pub mod pattern;
+pub mod recovery;
+pub mod search;
 pub mod shaders;
 pub mod transform;
 
 pub use catalogue::{BuildSettings, Catalogue};
-pub use matching::{match_texture, MatchResult, MatchSettings, Pattern};
+pub use objective::analysis_image;
+pub use pattern::Pattern;
+pub use recovery::{draw, recovered, recovery_trials, worst_error, Trial};
+pub use search::{match_texture, Candidate, MatchResult, MatchSettings};
 pub use shaders::{Kind, ParamSpec, Shader, LIBRARY};
 
 /// A pool of one thread and one of two, for tests that a result does not

@@ -23,8 +23,10 @@ use pathfinding::prelude::dijkstra;
 use rayon::prelude::*;
 
 use super::catalogue::{describe, unit_distance, Catalogue};
+use super::colour::ColourTarget;
 use super::descriptor::Structure;
-use super::matching::{simplex, ColourTarget, Pattern};
+use super::local::simplex;
+use super::pattern::Pattern;
 use super::shaders::{Kind, Shader};
 use crate::compare::Descriptors;
 
