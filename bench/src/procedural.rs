@@ -54,7 +54,7 @@ pub fn run(a: &MatchArgs) -> Result<()> {
             samples: a.samples,
             shaders: None,
         },
-        &|| {},
+        &texsyn::progress::Silent,
     )?;
     println!(
         "catalogue: {} shaders × {} samples at {}² in {:.1} s ({} threads)",

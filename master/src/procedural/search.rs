@@ -113,6 +113,20 @@ pub struct MatchResult {
 }
 
 impl MatchResult {
+    /// One line: the shader, the measures, time, iterations and renders.
+    pub fn summary(&self) -> String {
+        format!(
+            "matched {} (S_F {:.3}, S_L {:.3}, colour {:.3}) in {:.1} s, {} iterations, {} renders",
+            self.pattern.shader.name,
+            self.s_f,
+            self.s_l,
+            self.colour,
+            self.seconds,
+            self.iterations,
+            self.evaluations
+        )
+    }
+
     /// The `--params` JSON.
     pub fn to_json(&self) -> Value {
         let mut v = self.pattern.to_json();

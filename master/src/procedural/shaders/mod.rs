@@ -272,6 +272,23 @@ pub fn by_name(name: &str) -> Option<&'static Shader> {
     LIBRARY.iter().find(|s| s.name == name)
 }
 
+/// The library as text (`texsyn match shaders`): each shader's parameters,
+/// ranges and kinds.
+pub fn listing() -> String {
+    let mut out = String::new();
+    for s in LIBRARY {
+        out.push_str(&format!("{}: {}\n", s.name, s.doc));
+        for p in s.params {
+            out.push_str(&format!(
+                "  {:<11} {:?} {}..{}  {}\n",
+                p.name, p.kind, p.min, p.max, p.doc
+            ));
+        }
+        out.push_str("  colour_low, colour_high: RGB at pattern 0 and 1 (fitted, not searched)\n");
+    }
+    out
+}
+
 /// The index of the shader called `name`.
 pub fn index_of(name: &str) -> Option<usize> {
     LIBRARY.iter().position(|s| s.name == name)
