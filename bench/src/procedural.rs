@@ -11,7 +11,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use texsyn::imaging;
 use texsyn::procedural::catalogue::{BuildSettings, Catalogue};
-use texsyn::procedural::matching::{match_texture, recovery_trials, MatchSettings};
+use texsyn::procedural::{match_texture, recovery_trials, MatchSettings};
 use texsyn::procedural::{Kind, LIBRARY};
 
 #[derive(Args)]
@@ -54,7 +54,7 @@ pub fn run(a: &MatchArgs) -> Result<()> {
             samples: a.samples,
             shaders: None,
         },
-        &|| {},
+        &texsyn::progress::Silent,
     )?;
     println!(
         "catalogue: {} shaders × {} samples at {}² in {:.1} s ({} threads)",

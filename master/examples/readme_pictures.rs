@@ -251,10 +251,13 @@ fn main() -> Result<()> {
         )?;
     }
     if want("procedural") {
-        use texsyn::procedural::{catalogue, matching, transform};
+        use texsyn::procedural::{self as matching, catalogue, transform};
         println!("procedural: pink marble matched, then transformed into the leopard match");
         let t = std::time::Instant::now();
-        let cat = catalogue::Catalogue::build(&catalogue::BuildSettings::default(), &|| {})?;
+        let cat = catalogue::Catalogue::build(
+            &catalogue::BuildSettings::default(),
+            &texsyn::progress::Silent,
+        )?;
         println!("  catalogue {:.1} s", t.elapsed().as_secs_f64());
         let settings = matching::MatchSettings::default();
         let marble = imaging::load_color(&tex.join("pink_marble_color_128.png"))?;

@@ -16,8 +16,8 @@ use rand::{Rng, SeedableRng};
 use texsyn::compare::{laplacian_distance, spectrum_similarity};
 use texsyn::imaging::{self, ColorImage};
 use texsyn::procedural::catalogue::{BuildSettings, Catalogue};
-use texsyn::procedural::matching::{draw, recovery_trials, MatchSettings, Pattern};
 use texsyn::procedural::shaders::by_name;
+use texsyn::procedural::{draw, recovery_trials, MatchSettings, Pattern};
 use texsyn::procedural::{Kind, LIBRARY};
 
 fn bytes(p: &Path) -> Vec<u8> {
@@ -116,7 +116,7 @@ fn catalogue_sampling_is_deterministic_for_any_thread_count() {
             samples: 30,
             shaders: Some(vec!["stars".into(), "wood".into()]),
         },
-        &|| {},
+        &texsyn::progress::Silent,
     )
     .unwrap();
     assert!(serde_json::to_vec(&lib).unwrap() == bytes(&d("cat_1.json")));
@@ -131,7 +131,7 @@ fn synthetic_targets_are_recovered_with_integers_exact() {
             samples: 80,
             shaders: None,
         },
-        &|| {},
+        &texsyn::progress::Silent,
     )
     .unwrap();
     let settings = MatchSettings::default();
@@ -231,10 +231,7 @@ fn match_writes_the_render_and_the_parameters_the_same_for_any_threads() {
     assert_eq!(a["shader"], "spots");
     assert_eq!(a["parameters"]["spots"], 6.0);
     let found = Pattern::from_json(&a).unwrap();
-    assert!(
-        texsyn::procedural::matching::recovered(&truth, &found, 0.05),
-        "{a}"
-    );
+    assert!(texsyn::procedural::recovered(&truth, &found, 0.05), "{a}");
     let out = imaging::load_color(&d("out_1.png")).unwrap();
     assert_eq!((out.width, out.height), (96, 80));
     // Without --params the JSON goes to stdout.
@@ -473,4 +470,162 @@ fn bad_input_is_refused_with_the_fix_named() {
     ]);
     assert!(e.contains("--frames 1"), "{e}");
     assert!(!e.contains("panicked"), "{e}");
+}
+
+/// Two stripes patterns as stops `a.json` and `b.json` in `dir`.
+fn stripes_stops(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let shader = by_name("stripes").unwrap();
+    let stop = |name: &str, params: Vec<f64>, colours| {
+        let p = dir.join(name);
+        let pattern = Pattern {
+            shader,
+            params,
+            colours,
+        };
+        std::fs::write(&p, pattern.to_json().to_string()).unwrap();
+        p
+    };
+    (
+        stop("a.json", vec![3.0, 10.0, 0.2, 0.1], [[0.0; 3], [255.0; 3]]),
+        stop(
+            "b.json",
+            vec![12.0, 100.0, 0.45, 0.25],
+            [[200.0, 0.0, 0.0], [0.0, 0.0, 200.0]],
+        ),
+    )
+}
+
+/// `match transform` holds one frame at a time: 200 frames of 512² (150 MiB
+/// of pixels) are written under a 96 MiB data limit.
+#[test]
+fn transform_streams_frames_in_bounded_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |f: &str| dir.path().join(f);
+    let cat = small_catalogue(dir.path(), "stripes");
+    let (a, b) = stripes_stops(dir.path());
+    let out = std::process::Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -d 98304 && exec \"$0\" \"$@\"")
+        .arg(env!("CARGO_BIN_EXE_texsyn"))
+        .args(["match", "transform", s(&a), s(&b), "--catalogue", s(&cat)])
+        .args(["--frames", "200", "--size", "512x512", "--delay", "0"])
+        .args(["--threads", "2", "-q", "-o", s(&d("frames"))])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(d("frames/frame_0199.png").is_file());
+    assert!(d("frames/transform.json").is_file());
+    assert!(!d("frames/transform.gif").exists(), "--delay 0: no GIF");
+}
+
+/// `match transform` from `stop` to `b`, with `extra` flags and defaults
+/// for `--frames` and `--size`.
+fn transform_args<'a>(
+    stop: &'a Path,
+    b: &'a Path,
+    cat: &'a Path,
+    extra: &[&'a str],
+) -> Vec<&'a str> {
+    let mut args = vec!["match", "transform", s(stop), s(b), "--catalogue"];
+    args.extend([s(cat), "-q"]);
+    args.extend(extra);
+    for (flag, default) in [("--frames", "3"), ("--size", "32x32")] {
+        if !extra.contains(&flag) {
+            args.extend([flag, default]);
+        }
+    }
+    args
+}
+
+/// Every flag of `match transform` is checked before any work: nothing is
+/// written, and the old output set is left whole.
+#[test]
+fn transform_checks_every_flag_before_writing() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |f: &str| dir.path().join(f);
+    let cat = small_catalogue(dir.path(), "stripes");
+    let (a, b) = stripes_stops(dir.path());
+    let target = common::assets().join("brick_color_96.png");
+    let frames = d("frames");
+    for (extra, needle) in [
+        (vec!["--delay", "20000000"], "--delay 20000000"),
+        (vec!["--size", "20000x16"], "--size 20000x16"),
+        (vec!["--exponent", "0.5"], "exponent"),
+        (vec!["--starts", "0"], "--starts 0"),
+    ] {
+        let mut args = transform_args(&target, &b, &cat, &extra);
+        args.extend(["-o", s(&frames)]);
+        let e = refused(&args);
+        assert!(e.contains(needle) && !e.contains("panicked"), "{e}");
+        assert!(!frames.exists(), "{extra:?}: an output was written");
+    }
+    // A directory of someone else's files is refused before any work.
+    std::fs::create_dir(d("mine")).unwrap();
+    std::fs::write(d("mine/notes.txt"), "x").unwrap();
+    let mine = d("mine");
+    let mut args = transform_args(&a, &b, &cat, &[]);
+    args.extend(["-o", s(&mine)]);
+    let e = refused(&args);
+    assert!(e.contains("did not write"), "{e}");
+    assert!(!d("mine/frame_0000.png").exists());
+    // A set written before is replaced whole: no stale file is left.
+    let mut args = transform_args(&a, &b, &cat, &["--frames", "4"]);
+    args.extend(["-o", s(&frames)]);
+    ok(&args);
+    assert!(frames.join("frame_0003.png").is_file());
+    let mut args = transform_args(&a, &b, &cat, &["--frames", "2", "--delay", "0"]);
+    args.extend(["-o", s(&frames)]);
+    ok(&args);
+    assert!(frames.join("frame_0001.png").is_file());
+    assert!(!frames.join("frame_0002.png").exists());
+    assert!(!frames.join("transform.gif").exists());
+}
+
+/// A FIFO, a device and a cut catalogue given to `match transform`, and a
+/// FIFO as a stop: refused, never a hang, a panic or a filled memory.
+#[test]
+fn transform_refuses_special_or_damaged_inputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |f: &str| dir.path().join(f);
+    let cat = small_catalogue(dir.path(), "stripes");
+    let (a, b) = stripes_stops(dir.path());
+    let run = |stop: &Path, cat: &Path| {
+        refused(&[
+            "match",
+            "transform",
+            s(stop),
+            s(&b),
+            "--catalogue",
+            s(cat),
+            "--frames",
+            "3",
+            "--size",
+            "32x32",
+            "-o",
+            s(&d("frames")),
+        ])
+    };
+    let json: serde_json::Value = serde_json::from_slice(&bytes(&cat)).unwrap();
+    for field in ["quantiles", "bands"] {
+        let mut cut = json.clone();
+        cut["shaders"][0]["samples"][0]["structure"][field]
+            .as_array_mut()
+            .unwrap()
+            .truncate(1);
+        std::fs::write(d("cut.json"), cut.to_string()).unwrap();
+        let e = run(&a, &d("cut.json"));
+        assert!(e.contains("malformed") && !e.contains("panicked"), "{e}");
+    }
+    let e = run(&a, Path::new("/dev/zero"));
+    assert!(e.contains("not a file"), "{e}");
+    let fifo = d("fifo.json");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+    if made.is_ok_and(|st| st.success()) {
+        for (stop, cat) in [(&a, &fifo), (&fifo, &cat)] {
+            let e = run(stop, cat);
+            assert!(e.contains("not a file"), "{e}");
+        }
+    }
+    assert!(!d("frames").exists());
 }

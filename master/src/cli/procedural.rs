@@ -1,20 +1,21 @@
 //! `texsyn match`: procedural texture matching and transformation
 //! (Bourque–Dudek, ARCHITECTURE §12) from the command line.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{ensure, Context, Result};
+use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
-use indicatif::{ProgressBar, ProgressStyle};
 
+use super::progress::{spinner, Bars};
 use super::{parse_size, thread_pool};
-use crate::imaging::paths;
-use crate::imaging::{self, animation, ColorImage};
+use crate::budget::Budget;
+use crate::imaging;
+use crate::procedural::animate::{self, is_pattern};
 use crate::procedural::catalogue::{self, BuildSettings, Catalogue};
-use crate::procedural::matching::{match_texture, MatchResult, MatchSettings, Pattern};
+use crate::procedural::shaders::listing;
 use crate::procedural::transform::{self, TransformSettings};
-use crate::procedural::LIBRARY;
+use crate::procedural::{MatchConfig, MatchSettings, TransformConfig};
 
 #[derive(Args, Debug)]
 #[command(args_conflicts_with_subcommands = true)]
@@ -154,34 +155,64 @@ pub struct TransformArgs {
     pub search: SearchArgs,
 }
 
-fn bar(quiet: bool, len: u64, template: &str) -> ProgressBar {
-    if quiet {
-        return ProgressBar::hidden();
+impl TryFrom<&CatalogueArgs> for BuildSettings {
+    type Error = anyhow::Error;
+
+    fn try_from(c: &CatalogueArgs) -> Result<Self> {
+        let s = BuildSettings {
+            size: c.size,
+            samples: c.samples,
+            shaders: (!c.shaders.is_empty()).then(|| c.shaders.clone()),
+        };
+        s.validate()?;
+        Ok(s)
     }
-    let b = ProgressBar::new(len);
-    b.set_style(
-        ProgressStyle::with_template(template)
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    b
 }
 
-fn spinner(quiet: bool, message: String) -> ProgressBar {
-    if quiet {
-        return ProgressBar::hidden();
+impl TryFrom<&MatchArgs> for MatchConfig {
+    type Error = anyhow::Error;
+
+    fn try_from(a: &MatchArgs) -> Result<Self> {
+        let target = a.target.clone().context(
+            "give the target image: texsyn match TARGET.png --catalogue CAT -o OUT.png --params OUT.json (or a subcommand: catalogue, transform, shaders)",
+        )?;
+        let cfg = MatchConfig {
+            target,
+            catalogue: a.catalogue.clone().unwrap_or_default(),
+            output: a.output.clone(),
+            params: a.params.clone(),
+            size: a.size.as_deref().map(parse_size).transpose()?,
+            search: MatchSettings::try_from(&a.search)?,
+        };
+        cfg.validate()?;
+        Ok(cfg)
     }
-    let b = ProgressBar::new_spinner();
-    b.set_message(message);
-    b.enable_steady_tick(std::time::Duration::from_millis(120));
-    b
 }
 
-fn load_catalogue(path: Option<&Path>) -> Result<Catalogue> {
-    let p = path.context(
-        "no --catalogue given; build one once with: texsyn match catalogue -o shaders.cat, then pass --catalogue shaders.cat",
-    )?;
-    Catalogue::load(p)
+impl TryFrom<&TransformArgs> for TransformConfig {
+    type Error = anyhow::Error;
+
+    fn try_from(t: &TransformArgs) -> Result<Self> {
+        let cfg = TransformConfig {
+            a: t.a.clone(),
+            b: t.b.clone(),
+            keys: t.key.clone(),
+            catalogue: t.catalogue.clone().unwrap_or_default(),
+            output: t.output.clone(),
+            frames: t.frames,
+            size: parse_size(&t.size)?,
+            delay: t.delay,
+            path: TransformSettings {
+                exponent: t.exponent,
+                threshold: t.threshold,
+                ..TransformSettings::default()
+            },
+            search: MatchSettings::try_from(&t.search)?,
+            budget: Budget::default(),
+        };
+        cfg.validate()?;
+        Ok(cfg)
+    }
 }
 
 /// Entry point of `texsyn match`.
@@ -190,235 +221,75 @@ pub fn run(a: &MatchArgs) -> Result<()> {
         Some(MatchCommand::Catalogue(c)) => run_catalogue(c),
         Some(MatchCommand::Transform(t)) => run_transform(t),
         Some(MatchCommand::Shaders) => {
-            print_shaders();
+            use std::io::Write;
+            // A closed pipe (e.g. `| head`) is not an error worth a message.
+            let _ = std::io::stdout().lock().write_all(listing().as_bytes());
             Ok(())
         }
         None => run_match(a),
     }
 }
 
-fn print_shaders() {
-    use std::io::Write;
-    let mut out = String::new();
-    for s in LIBRARY {
-        out.push_str(&format!("{}: {}\n", s.name, s.doc));
-        for p in s.params {
-            out.push_str(&format!(
-                "  {:<11} {:?} {}..{}  {}\n",
-                p.name, p.kind, p.min, p.max, p.doc
-            ));
-        }
-        out.push_str("  colour_low, colour_high: RGB at pattern 0 and 1 (fitted, not searched)\n");
-    }
-    // A closed pipe (e.g. `| head`) is not an error worth a message.
-    let _ = std::io::stdout().lock().write_all(out.as_bytes());
-}
-
 fn run_catalogue(c: &CatalogueArgs) -> Result<()> {
-    let settings = BuildSettings {
-        size: c.size,
-        samples: c.samples,
-        shaders: (!c.shaders.is_empty()).then(|| c.shaders.clone()),
-    };
-    settings.validate()?;
+    let settings = BuildSettings::try_from(c)?;
     imaging::check_writable_any(&c.output)?;
     let pool = thread_pool(c.threads)?;
-    let count = catalogue::selected(settings.shaders.as_deref())?.len();
-    let b = bar(
-        c.quiet,
-        (count * settings.samples) as u64,
-        "catalogue [{bar:40}] {pos}/{len} samples {elapsed_precise} eta {eta}",
-    );
     let t = Instant::now();
-    let cat = pool.install(|| Catalogue::build(&settings, &|| b.inc(1)))?;
-    b.finish_and_clear();
+    let cat = pool.install(|| Catalogue::build(&settings, &Bars::new(c.quiet)))?;
     cat.save(&c.output)?;
     if !c.quiet {
-        eprintln!(
-            "wrote {} ({} shaders, {} samples at {}², {:.1} s)",
-            c.output.display(),
-            cat.shaders.len(),
-            cat.shaders.iter().map(|s| s.samples.len()).sum::<usize>(),
-            cat.size,
-            t.elapsed().as_secs_f64()
-        );
+        let (out, secs) = (c.output.display(), t.elapsed().as_secs_f64());
+        eprintln!("wrote {out} ({}, {secs:.1} s)", cat.summary());
     }
     Ok(())
 }
 
 fn run_match(a: &MatchArgs) -> Result<()> {
-    let target_path = a.target.as_deref().context(
-        "give the target image: texsyn match TARGET.png --catalogue CAT -o OUT.png --params OUT.json (or a subcommand: catalogue, transform, shaders)",
-    )?;
-    let mut outputs: Vec<(&str, &Path)> = Vec::new();
-    if let Some(o) = &a.output {
-        imaging::check_writable(o)?;
-        outputs.push(("-o", o));
-    }
-    if let Some(p) = &a.params {
-        imaging::check_writable_any(p)?;
-        outputs.push(("--params", p));
-    }
-    let mut inputs = vec![("target", target_path)];
-    inputs.extend(a.catalogue.as_deref().map(|c| ("--catalogue", c)));
-    paths::check_files(&outputs, &inputs, None)?;
-    let settings = MatchSettings::try_from(&a.search)?;
-    let size = a.size.as_deref().map(parse_size).transpose()?;
-    let target = imaging::load_color(target_path)?;
-    let (w, h) = size.unwrap_or((target.width, target.height));
-    if let Some(o) = &a.output {
-        imaging::check_output_size(o, w, h)?;
-    }
-    let cat = load_catalogue(a.catalogue.as_deref())?;
+    let cfg = MatchConfig::try_from(a)?;
     let pool = thread_pool(a.search.threads)?;
     let sp = spinner(
         a.search.quiet,
-        format!("matching {} against the catalogue", target_path.display()),
+        format!("matching {} against the catalogue", cfg.target.display()),
     );
-    let m = pool.install(|| match_texture(&target, &cat, &settings))?;
+    let (m, json) = pool.install(|| cfg.run())?;
     sp.finish_and_clear();
-    let json = serde_json::to_string_pretty(&m.to_json())?;
-    if let Some(o) = &a.output {
-        let img = pool.install(|| m.pattern.render(w, h));
-        imaging::save_color(o, &img)?;
-    }
-    match &a.params {
-        Some(p) => imaging::save_bytes(p, json.as_bytes())?,
-        None => println!("{json}"),
+    if let Some(json) = json {
+        println!("{json}");
     }
     if !a.search.quiet {
-        eprintln!("{}", summary(&m));
+        eprintln!("{}", m.summary());
     }
     Ok(())
 }
 
-fn summary(m: &MatchResult) -> String {
-    format!(
-        "matched {} (S_F {:.3}, S_L {:.3}, colour {:.3}) in {:.1} s, {} iterations, {} renders",
-        m.pattern.shader.name, m.s_f, m.s_l, m.colour, m.seconds, m.iterations, m.evaluations
-    )
-}
-
-/// A stop of a transformation: a pattern JSON as given, or an image matched.
-fn stop(path: &Path, cat: &Catalogue, settings: &MatchSettings, quiet: bool) -> Result<Pattern> {
-    let is_json = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
-    if is_json {
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("cannot read the pattern {}", path.display()))?;
-        let v: serde_json::Value = serde_json::from_str(&text)
-            .with_context(|| format!("{} is not JSON", path.display()))?;
-        return Pattern::from_json(&v).with_context(|| {
-            format!(
-                "{} is not a pattern written by texsyn match --params",
-                path.display()
-            )
-        });
-    }
-    let img: ColorImage = imaging::load_color(path)?;
-    let sp = spinner(quiet, format!("matching {}", path.display()));
-    let m = match_texture(&img, cat, settings)?;
-    sp.finish_and_clear();
-    if !quiet {
-        eprintln!("{}: {}", path.display(), summary(&m));
-    }
-    Ok(m.pattern)
-}
-
 fn run_transform(t: &TransformArgs) -> Result<()> {
-    ensure!(
-        (2..=10_000).contains(&t.frames),
-        "--frames {} must be in 2..=10000",
-        t.frames
-    );
-    let (w, h) = parse_size(&t.size)?;
-    let tsettings = TransformSettings {
-        exponent: t.exponent,
-        threshold: t.threshold,
-        ..TransformSettings::default()
-    };
-    tsettings.validate()?;
-    let settings = MatchSettings::try_from(&t.search)?;
-    let mut inputs: Vec<(&str, &Path)> = vec![("A", &t.a), ("B", &t.b)];
-    inputs.extend(t.key.iter().map(|k| ("--key", k.as_path())));
-    inputs.extend(t.catalogue.as_deref().map(|c| ("--catalogue", c)));
-    for (flag, p) in &inputs {
-        ensure!(
-            p.is_file(),
-            "the {flag} {} does not exist or is not a file",
-            p.display()
-        );
-    }
-    std::fs::create_dir_all(&t.output)
-        .with_context(|| format!("cannot create the output directory {}", t.output.display()))?;
-    let first = t.output.join("frame_0000.png");
-    imaging::check_writable(&first)?;
-    let names: Vec<PathBuf> = (0..t.frames)
-        .map(|i| t.output.join(format!("frame_{i:04}.png")))
-        .chain([
-            t.output.join("transform.gif"),
-            t.output.join("transform.webp"),
-            t.output.join("transform.json"),
-        ])
-        .collect();
-    let outputs: Vec<(&str, &Path)> = names.iter().map(|p| ("-o", p.as_path())).collect();
-    paths::check_files(&outputs, &inputs, None)?;
-    let cat = load_catalogue(t.catalogue.as_deref())?;
+    let cfg = TransformConfig::try_from(t)?;
+    let q = t.search.quiet;
+    let cat = Catalogue::load(&cfg.catalogue)?;
     let pool = thread_pool(t.search.threads)?;
     let started = Instant::now();
-    let q = t.search.quiet;
-    let mut stops = vec![pool.install(|| stop(&t.a, &cat, &settings, q))?];
-    for k in &t.key {
-        stops.push(pool.install(|| stop(k, &cat, &settings, q))?);
+    let mut stops = Vec::new();
+    for p in cfg.stops() {
+        let sp = spinner(q || is_pattern(p), format!("matching {}", p.display()));
+        let (pattern, m) = pool.install(|| animate::load_stop(p, &cat, &cfg.search))?;
+        sp.finish_and_clear();
+        if let (Some(m), false) = (&m, q) {
+            eprintln!("{}: {}", p.display(), m.summary());
+        }
+        stops.push(pattern);
     }
-    stops.push(pool.install(|| stop(&t.b, &cat, &settings, q))?);
     let sp = spinner(q, "planning the transformation".into());
-    let path = pool.install(|| transform::transform(&cat, &stops, &tsettings))?;
+    let path = pool.install(|| transform::transform(&cat, &stops, &cfg.path))?;
     sp.finish_and_clear();
-    let frames = transform::frames(&path, t.frames);
-    let b = bar(q, frames.len() as u64, "frames [{bar:40}] {pos}/{len}");
-    let mut images = Vec::with_capacity(frames.len());
-    for (i, f) in frames.iter().enumerate() {
-        let img = pool.install(|| f.render(w, h));
-        imaging::save_color(&names[i], &img)?;
-        images.push(img);
-        b.inc(1);
-    }
-    b.finish_and_clear();
-    if t.delay > 0 {
-        let gif = animation::encode_gif(&images, t.delay)?;
-        imaging::save_bytes(&names[t.frames], &gif)?;
-        let webp = animation::encode_webp(&images, t.delay)?;
-        imaging::save_bytes(&names[t.frames + 1], &webp)?;
-    }
-    let report = serde_json::json!({
-        "stops": stops.iter().map(Pattern::to_json).collect::<Vec<_>>(),
-        "path_points": path.points.len(),
-        "path_length": path.steps.iter().sum::<f64>(),
-        "largest_step": path.steps.iter().cloned().fold(0.0, f64::max),
-        "jumps": path.jumps.iter().filter(|&&j| j).count(),
-        "seconds": started.elapsed().as_secs_f64(),
-        "frames": frames.iter().map(Pattern::to_json).collect::<Vec<_>>(),
-    });
-    imaging::save_bytes(
-        &names[t.frames + 2],
-        serde_json::to_string_pretty(&report)?.as_bytes(),
-    )?;
+    let frames = transform::frames(&path, cfg.frames);
+    let bars = Bars::new(q);
+    pool.install(|| animate::write_transform(&cfg, &stops, &path, &frames, started, &bars))?;
     if !q {
+        let (n, out) = (cfg.frames, cfg.output.display());
+        let secs = started.elapsed().as_secs_f64();
         eprintln!(
-            "wrote {} frames to {} ({} path points, {} jump{}, {:.1} s)",
-            t.frames,
-            t.output.display(),
-            path.points.len(),
-            path.jumps.iter().filter(|&&j| j).count(),
-            if path.jumps.iter().filter(|&&j| j).count() == 1 {
-                ""
-            } else {
-                "s"
-            },
-            started.elapsed().as_secs_f64()
+            "wrote {n} frames to {out} ({}, {secs:.1} s)",
+            path.summary()
         );
     }
     Ok(())

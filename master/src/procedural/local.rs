@@ -1,0 +1,207 @@
+//! The local search (Bourque–Dudek §3.2.2): Nelder–Mead (argmin) over the
+//! continuous parameters on the unit box, coordinate sweeps across the
+//! basins of periodic parameters, and whole-number parameters stepped with
+//! a shorter simplex run each, as long as they help.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use anyhow::{Context, Result};
+use argmin::core::{CostFunction, Executor, State};
+use argmin::solver::neldermead::NelderMead;
+use rayon::prelude::*;
+
+use super::objective::{evaluate, Eval, Problem, Target};
+use super::shaders::{Kind, Shader};
+
+/// Nelder–Mead (argmin) on `problem` from the unit-box point `x0`: the
+/// first simplex steps `step` along each axis (inwards at the upper edge);
+/// it stops at `tolerance` or after `iters` iterations. Gives the problem
+/// back with the best point and the iterations run.
+pub(super) fn simplex<P>(
+    problem: P,
+    x0: &[f64],
+    step: f64,
+    tolerance: f64,
+    iters: u64,
+) -> Result<(P, Vec<f64>, u64)>
+where
+    P: CostFunction<Param = Vec<f64>, Output = f64>,
+{
+    let mut vertices = vec![x0.to_vec()];
+    for d in 0..x0.len() {
+        let mut v = x0.to_vec();
+        v[d] += if v[d] + step > 1.0 { -step } else { step };
+        vertices.push(v);
+    }
+    let solver = NelderMead::new(vertices)
+        .with_sd_tolerance(tolerance)
+        .map_err(|e| anyhow::anyhow!("simplex setup: {e}"))?;
+    let res = Executor::new(problem, solver)
+        .configure(|s| s.max_iters(iters))
+        .run()
+        .map_err(|e| anyhow::anyhow!("simplex search: {e}"))?;
+    let n = res.state().get_iter();
+    let best = res
+        .state()
+        .get_best_param()
+        .cloned()
+        .unwrap_or_else(|| x0.to_vec());
+    let problem = res
+        .problem
+        .problem
+        .context("the simplex lost its problem")?;
+    Ok((problem, best, n))
+}
+
+/// Nelder–Mead from `start` over the continuous parameters, then one
+/// restart with a small simplex round the best point: a collapsed simplex
+/// often stops short of the minimum.
+pub(super) fn refine(
+    shader: &'static Shader,
+    start: &[f64],
+    max_iters: u64,
+    target: &Target,
+    evals: &AtomicU64,
+) -> Result<(Eval, u64)> {
+    let problem = Problem {
+        shader,
+        base: shader.legal(start),
+        free: shader.continuous(),
+        target,
+        evals,
+    };
+    if problem.free.is_empty() {
+        return Ok((problem.evaluate(&problem.base), 0));
+    }
+    let x0 = shader.to_unit_box(&problem.base, &problem.free);
+    let (problem, best, first) = simplex(problem, &x0, 0.1, 1e-6, max_iters)?;
+    let (problem, best, second) = simplex(problem, &best, 0.02, 1e-7, max_iters.div_ceil(2))?;
+    let params = problem.params(&best);
+    Ok((problem.evaluate(&params), first + second))
+}
+
+/// Values per parameter in a [`sweep`].
+const SWEEP: usize = 64;
+
+/// A coordinate sweep: each continuous parameter in turn is set to
+/// [`SWEEP`] values spread over its whole range (the others kept), and the
+/// best render is kept; repeated while a pass helps, at most twice. The
+/// objective of a periodic pattern along a frequency, an angle or an aspect
+/// is a comb of narrow basins, one per harmonic; a start in the wrong basin
+/// is one the simplex cannot leave, and a sweep crosses them all.
+fn sweep(shader: &'static Shader, from: Eval, target: &Target, evals: &AtomicU64) -> Eval {
+    let mut best = from;
+    for _pass in 0..2 {
+        let before = best.objective;
+        for (i, spec) in shader.params.iter().enumerate() {
+            if spec.kind == Kind::Integer {
+                continue;
+            }
+            let tried: Vec<Eval> = (0..SWEEP)
+                .into_par_iter()
+                .map(|k| {
+                    let t = match spec.kind {
+                        Kind::Periodic => k as f64 / SWEEP as f64,
+                        _ => k as f64 / (SWEEP - 1) as f64,
+                    };
+                    let mut p = best.params.clone();
+                    p[i] = spec.from_unit(t);
+                    evals.fetch_add(1, Ordering::Relaxed);
+                    evaluate(shader, &p, target)
+                })
+                .collect();
+            if let Some(e) = tried
+                .into_iter()
+                .min_by(|a, b| a.objective.total_cmp(&b.objective))
+                .filter(|e| e.objective < best.objective)
+            {
+                best = e;
+            }
+        }
+        if best.objective >= before - 1e-9 {
+            break;
+        }
+    }
+    best
+}
+
+/// [`sweep`] and [`refine`] in turn from `start`, while a round helps (at
+/// most three rounds): the simplex settles the coupled parameters, and a
+/// sweep after it moves the ones whose objective is a staircase at pixel
+/// scale (edge softness), where the simplex stalls.
+fn sweep_and_refine(
+    shader: &'static Shader,
+    start: &[f64],
+    max_iters: u64,
+    target: &Target,
+    evals: &AtomicU64,
+) -> Result<(Eval, u64)> {
+    evals.fetch_add(1, Ordering::Relaxed);
+    let mut best = evaluate(shader, &shader.legal(start), target);
+    let mut iters = 0;
+    for round in 0..3 {
+        let before = best.objective;
+        let swept = sweep(shader, best, target, evals);
+        if round > 0 && swept.objective >= before - 1e-6 {
+            best = swept;
+            break;
+        }
+        let (e, n) = refine(shader, &swept.params, max_iters, target, evals)?;
+        iters += n;
+        best = if e.objective <= swept.objective {
+            e
+        } else {
+            swept
+        };
+    }
+    Ok((best, iters))
+}
+
+/// [`sweep_and_refine`], then each whole-number parameter swept: every
+/// value is rendered with the other parameters kept, and the two best new
+/// values are swept and refined with a shorter simplex run each; repeated
+/// while one helps.
+pub(super) fn refine_with_integers(
+    shader: &'static Shader,
+    start: &[f64],
+    max_iters: u64,
+    target: &Target,
+    evals: &AtomicU64,
+) -> Result<(Eval, u64)> {
+    let (mut best, mut iters) = sweep_and_refine(shader, start, max_iters, target, evals)?;
+    let ints: Vec<usize> = (0..shader.params.len())
+        .filter(|&i| shader.params[i].kind == Kind::Integer)
+        .collect();
+    for _round in 0..3 {
+        let mut improved = false;
+        for &i in &ints {
+            let spec = &shader.params[i];
+            let mut tried: Vec<(f64, f64)> = Vec::new();
+            let mut v = spec.min;
+            while v <= spec.max {
+                if v != best.params[i] {
+                    let mut p = best.params.clone();
+                    p[i] = v;
+                    evals.fetch_add(1, Ordering::Relaxed);
+                    tried.push((evaluate(shader, &p, target).objective, v));
+                }
+                v += 1.0;
+            }
+            tried.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+            for &(_, v) in tried.iter().take(2) {
+                let mut p = best.params.clone();
+                p[i] = v;
+                let (e, n) = sweep_and_refine(shader, &p, max_iters.div_ceil(2), target, evals)?;
+                iters += n;
+                if e.objective < best.objective - 1e-9 {
+                    best = e;
+                    improved = true;
+                }
+            }
+        }
+        if !improved {
+            break;
+        }
+    }
+    Ok((best, iters))
+}
