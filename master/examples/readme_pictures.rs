@@ -138,7 +138,7 @@ fn main() -> Result<()> {
             path: Default::default(),
             seed: 1,
         };
-        let set = texsyn::tiles::make_tile_set(&beans, None, &settings, &|_| {})?;
+        let set = texsyn::tiles::make_tile_set(&beans, None, &settings, &texsyn::progress::Silent)?;
         let one = texsyn::tiles::assemble(&set.tiles, &vec![vec![1; 4]; 4])?;
         let index = [[7, 6, 1, 5], [3, 7, 5, 8], [5, 1, 6, 2], [4, 3, 2, 3]].map(Vec::from);
         let eight = texsyn::tiles::assemble(&set.tiles, &index)?;
@@ -152,8 +152,13 @@ fn main() -> Result<()> {
         let mut backend = LocalSearch::new(Engine::default());
         evaluator.load(&mut backend)?;
         let settings = texsyn::tiles::ais::AisSettings::default();
-        let found =
-            texsyn::tiles::ais::search(&mut evaluator, &mut backend, &marble, &settings, &|_| {})?;
+        let found = texsyn::tiles::ais::search(
+            &mut evaluator,
+            &mut backend,
+            &marble,
+            &settings,
+            &texsyn::progress::Silent,
+        )?;
         let (omega_tiles, _) = texsyn::tiles::ais::build_tiles(&evaluator, &marble, &found.genes);
         let index: Vec<Vec<usize>> = texsyn::tiles::omega::scan_line_tiling(&set, 6, 4, 2)?
             .into_iter()

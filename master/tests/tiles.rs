@@ -10,6 +10,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use texsyn::compare;
 use texsyn::imaging::ColorImage;
+use texsyn::progress::Silent;
 use texsyn::seams::{self as path, ErrorMap, Oscillating, Start};
 use texsyn::tiles::stitch::{self, Belt, Side, StitchSettings};
 use texsyn::tiles::{self, PathSearch, Rect, TileSetSettings};
@@ -204,9 +205,9 @@ fn every_tile_keeps_the_template_s_border_strips_and_differs_inside() {
         path: PathSearch::Optimal,
         ..s
     };
-    let exact = tiles::make_tile_set(&sample, None, &exact, &|_| {}).unwrap();
+    let exact = tiles::make_tile_set(&sample, None, &exact, &Silent).unwrap();
     s.path = PathSearch::Oscillating;
-    let set = tiles::make_tile_set(&sample, None, &s, &|_| {}).unwrap();
+    let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
     // The same template rectangle; the exact paths cost no more, and the
     // oscillating ones stay within 15 % of them.
     assert_eq!(exact.template.rect, set.template.rect);
@@ -264,7 +265,7 @@ fn every_tile_keeps_the_template_s_border_strips_and_differs_inside() {
 #[test]
 fn an_assembled_grid_has_no_seam_and_raw_crops_do() {
     let sample = texture("gravel_gray_500.png");
-    let set = tiles::make_tile_set(&sample, None, &settings(4), &|_| {}).unwrap();
+    let set = tiles::make_tile_set(&sample, None, &settings(4), &Silent).unwrap();
     let (w, h) = (set.tiles[0].width, set.tiles[0].height);
     let index = tiles::random_index(4, 6, 6, 9);
     let grid = tiles::assemble(&set.tiles, &index).unwrap();
@@ -295,14 +296,14 @@ fn an_assembled_grid_has_no_seam_and_raw_crops_do() {
 #[test]
 fn the_paper_s_index_matrix_assembles_and_bad_ones_are_refused() {
     let sample = texture("gravel_gray_500.png");
-    let set = tiles::make_tile_set(&sample, None, &settings(8), &|_| {}).unwrap();
+    let set = tiles::make_tile_set(&sample, None, &settings(8), &Silent).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let csv = dir.path().join("fig10.csv");
     std::fs::write(&csv, "7,6,1,5\n3,7,5,8\n5,1,6,2\n4,3,2,3\n").unwrap();
-    let index = texsyn::cli::read_index(&csv).unwrap();
+    let index = tiles::read_index(&csv).unwrap();
     let json = dir.path().join("fig10.json");
     std::fs::write(&json, "[[7,6,1,5],[3,7,5,8],[5,1,6,2],[4,3,2,3]]").unwrap();
-    assert_eq!(texsyn::cli::read_index(&json).unwrap(), index);
+    assert_eq!(tiles::read_index(&json).unwrap(), index);
     let grid = tiles::assemble(&set.tiles, &index).unwrap();
     let (w, h) = (set.tiles[0].width, set.tiles[0].height);
     assert_eq!((grid.width, grid.height), (4 * w, 4 * h));
@@ -319,7 +320,7 @@ fn the_paper_s_index_matrix_assembles_and_bad_ones_are_refused() {
 fn a_given_template_is_used_as_it_is() {
     let sample = texture("coffee_beans_color_512.png");
     let template = crop(&sample, 100, 100, 90, 90);
-    let set = tiles::make_tile_set(&sample, Some(&template), &settings(3), &|_| {}).unwrap();
+    let set = tiles::make_tile_set(&sample, Some(&template), &settings(3), &Silent).unwrap();
     assert_eq!(set.tiles[0], template);
     let r = set.derived[0].patch.target;
     assert_eq!(
@@ -465,7 +466,7 @@ fn tiles_and_compare_on_the_command_line() {
     let err = refused(&["tiles", "assemble", s(dir.path()), "-o", s(&out)]);
     assert!(err.contains("texsyn tiles make"), "{err}");
     let err = refused(&[&assemble[..], &["--grid", "3by2", "-o", s(&out)]].concat());
-    assert!(err.contains("WxH"), "{err}");
+    assert!(err.contains("--grid") && err.contains("4x4"), "{err}");
 
     // Grids too large for memory or the format are refused before any work,
     // and leave no output.
@@ -714,4 +715,137 @@ fn omega_tiles_on_the_command_line() {
             "{how:?}: {err}"
         );
     }
+}
+
+/// A small Somol–Haindl set made on the command line into `dir/name`.
+fn small_set(dir: &std::path::Path, name: &str, tiles: &str) -> std::path::PathBuf {
+    use common::s;
+    let set = dir.join(name);
+    let sample = common::assets().join("pink_marble_color_128.png");
+    ok(&[
+        "tiles",
+        "make",
+        s(&sample),
+        "--tiles",
+        tiles,
+        "--tile-size",
+        "48",
+        "--candidates",
+        "4",
+        "-q",
+        "-o",
+        s(&set),
+    ]);
+    set
+}
+
+/// The names in a directory, sorted.
+fn listing(dir: &std::path::Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+/// Outputs onto a set's own files, inputs inside the output directory and a
+/// directory of other files are refused before any work; a set made again
+/// replaces the old one whole, and a failed run leaves it as it was.
+#[test]
+fn tile_outputs_never_overwrite_their_inputs() {
+    use common::s;
+    let dir = tempfile::tempdir().unwrap();
+    let set = small_set(dir.path(), "set", "3");
+    let tile = set.join("tile_01.png");
+    let bytes = std::fs::read(&tile).unwrap();
+    let files = listing(&set);
+    let err = refused(&["tiles", "assemble", s(&set), "-o", s(&tile)]);
+    assert!(
+        err.contains("tile_01.png") && err.contains("another file"),
+        "{err}"
+    );
+    let wall = set.join("wall.png");
+    let err = refused(&["tiles", "assemble", s(&set), "-o", s(&wall)]);
+    assert!(err.contains("inside the tile set"), "{err}");
+    let err = refused(&["tiles", "make", s(&tile), "-q", "-o", s(&set)]);
+    assert!(err.contains("inside the output directory"), "{err}");
+    let template = ["--template", s(&tile)];
+    let sample = common::assets().join("pink_marble_color_128.png");
+    let err = refused(
+        &[
+            &["tiles", "make", s(&sample), "-q", "-o", s(&set)][..],
+            &template,
+        ]
+        .concat(),
+    );
+    assert!(
+        err.contains("--template") && err.contains("inside"),
+        "{err}"
+    );
+    // A failed run (the tile is larger than the sample) leaves the set whole
+    // and no temporary beside it.
+    let err = refused(&[
+        "tiles",
+        "make",
+        s(&sample),
+        "--tile-size",
+        "200",
+        "-q",
+        "-o",
+        s(&set),
+    ]);
+    assert!(err.contains("--tile-size"), "{err}");
+    assert_eq!(std::fs::read(&tile).unwrap(), bytes);
+    assert_eq!(listing(&set), files);
+    assert_eq!(listing(dir.path()), ["set"]);
+    // Made again with fewer tiles: no stale tile of the older set remains.
+    small_set(dir.path(), "set", "2");
+    assert!(!set.join("tile_03.png").exists(), "{:?}", listing(&set));
+    assert!(set.join("tile_02.png").is_file());
+    // A directory of the user's files is never replaced.
+    let user = dir.path().join("user");
+    std::fs::create_dir(&user).unwrap();
+    std::fs::write(user.join("notes.txt"), "mine").unwrap();
+    let err = refused(&["tiles", "make", s(&sample), "-q", "-o", s(&user)]);
+    assert!(err.contains("did not write"), "{err}");
+    assert!(user.join("notes.txt").is_file());
+}
+
+/// A `tileset.json` cut short, malformed or not a file is an error naming
+/// it and the fix, with an index as with a grid, never a panic; the typed
+/// file reads back what `tiles make` wrote.
+#[test]
+fn a_cut_or_malformed_tileset_json_is_refused_with_the_fix() {
+    use common::s;
+    let dir = tempfile::tempdir().unwrap();
+    let set = small_set(dir.path(), "set", "2");
+    let json = set.join("tileset.json");
+    let full = std::fs::read(&json).unwrap();
+    let file = tiles::TileSetFile::read(&set).unwrap();
+    assert_eq!(file.tile_count(), 2);
+    let value: serde_json::Value = serde_json::from_slice(&full).unwrap();
+    assert_eq!(serde_json::to_value(&file).unwrap(), value);
+    let csv = dir.path().join("index.csv");
+    std::fs::write(&csv, "1,2\n2,1\n").unwrap();
+    let out = dir.path().join("grid.png");
+    let cut = &full[..full.len() / 2];
+    for bad in [cut, b"{\"method\": \"somol\"}", b"[1, 2]", b"\xff\xfe"] {
+        std::fs::write(&json, bad).unwrap();
+        for how in [&["--index", s(&csv)][..], &["--grid", "2x2"][..]] {
+            let err =
+                refused(&[&["tiles", "assemble", s(&set)][..], how, &["-o", s(&out)]].concat());
+            assert!(
+                err.contains("tileset.json")
+                    && err.contains("texsyn tiles make")
+                    && !err.contains("panicked"),
+                "{how:?}: {err}"
+            );
+            assert!(!out.exists());
+        }
+    }
+    std::fs::remove_file(&json).unwrap();
+    std::fs::create_dir(&json).unwrap();
+    let err = refused(&["tiles", "assemble", s(&set), "-o", s(&out)]);
+    assert!(err.contains("texsyn tiles make"), "{err}");
 }

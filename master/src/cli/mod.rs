@@ -27,7 +27,7 @@ pub use solid::SolidArgs;
 mod procedural;
 pub use compare::CompareArgs;
 pub use procedural::{MatchArgs, MatchCommand};
-pub use tiles::{read_index, TilesCommand};
+pub use tiles::TilesCommand;
 
 const EXAMPLES: &str = "Examples:
   texsyn extend sample.png -o out.png --size 1024x1024 --block 5 --neighbourhood 11 --levels 4 --tileable --seed 7

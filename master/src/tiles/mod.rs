@@ -1,15 +1,32 @@
-//! Seamless tiles and tile sets after Somol and Haindl (ARCHITECTURE §7):
-//! minimum-error paths across overlaps ([`path`], §2.1), stitching with
-//! adaptive blending ([`stitch`], §2.2), and patch insertion, template tiles,
-//! derived tile sets and index-matrix tiling ([`tileset`], §2.3, §3).
+//! Seamless tiles and tile sets (ARCHITECTURE §7).
+//!
+//! Somol–Haindl: minimum-error stitching with adaptive blending ([`stitch`],
+//! §2.1–2.2), the template tile ([`template`], §3.1), patch insertion
+//! ([`patch`], §2.3), derived tile sets ([`tileset`], §3.2) and index-matrix
+//! tiling ([`grid`]). ω-tiles of Dong, Zhou and Paul: the sets ([`omega`],
+//! §3), the immune search ([`ais`], [`evaluate`], §4) and the tiles
+//! ([`build`], [`graphcut`], §4.3). [`config`] holds both methods' validated
+//! settings, [`make`] writes a set into a directory and [`file`] is its
+//! `tileset.json`, written and read by one type.
 
 pub mod ais;
+pub mod build;
+pub mod config;
+pub mod evaluate;
+pub mod file;
 pub mod graphcut;
+pub mod grid;
+pub mod make;
 pub mod omega;
+pub mod patch;
 pub mod stitch;
+pub mod template;
 pub mod tileset;
 
-pub use tileset::{
-    assemble, choose_template, insert_patch, make_template, make_tile_set, random_index,
-    PathSearch, Rect, TileSet, TileSetSettings,
-};
+pub use config::{MakeConfig, OmegaConfig, SomolConfig};
+pub use file::{load_tiles, tile_paths, TileSetFile};
+pub use grid::{assemble, check_grid, check_index, layout, random_index, read_index, Layout};
+pub use make::{make_omega, make_somol, omega_evaluator, Made};
+pub use patch::{insert_patch, PatchReport};
+pub use template::{choose_template, make_template, Rect, TemplateChoice};
+pub use tileset::{make_tile_set, DerivedTile, PathSearch, TileSet, TileSetSettings};

@@ -1,0 +1,266 @@
+//! The validated settings of `tiles make`, with the papers' defaults: the
+//! Somol–Haindl tile set (§3) and the ω-tile set of Dong, Zhou and Paul
+//! (§4.4).
+
+use std::ops::RangeInclusive;
+
+use anyhow::{ensure, Result};
+
+use super::ais::AisSettings;
+use super::grid::check_grid;
+use super::omega::OmegaSet;
+use super::tileset::{PathSearch, TileSetSettings};
+use crate::budget::Budget;
+use crate::imaging::ColorImage;
+
+/// Tiles of a Somol–Haindl set, the template included.
+pub const TILES: RangeInclusive<usize> = 1..=99;
+/// Random candidate patch positions per tile.
+pub const CANDIDATES: RangeInclusive<usize> = 1..=10_000;
+/// Antibodies of the immune search (N_p).
+pub const POPULATION: RangeInclusive<usize> = 2..=1_000;
+/// Generations of the immune search (N_g).
+pub const GENERATIONS: RangeInclusive<usize> = 1..=10_000;
+/// Generations without improvement before the search stops (N_o, 0 = never).
+pub const PATIENCE: RangeInclusive<usize> = 0..=10_000;
+/// Random patch sets of the baseline.
+pub const BASELINE: RangeInclusive<usize> = 0..=10_000;
+/// Overlap and belt width.
+pub const OVERLAP: RangeInclusive<usize> = 1..=1 << 14;
+/// Tile side.
+pub const TILE_SIZE: RangeInclusive<usize> = 4..=1 << 14;
+
+/// Refuses `value` of `flag` outside `range`, naming both.
+pub fn check_range(flag: &str, value: usize, range: &RangeInclusive<usize>) -> Result<()> {
+    ensure!(
+        range.contains(&value),
+        "{flag} {value} is out of range: give {}..={}",
+        range.start(),
+        range.end()
+    );
+    Ok(())
+}
+
+/// A Somol–Haindl tile set to make (§3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SomolConfig {
+    /// Number of tiles, the template included.
+    pub tiles: usize,
+    /// Greatest template side S (searched in [0.8·S, S]); default half the
+    /// sample's smaller side, at most 256.
+    pub tile_size: Option<usize>,
+    /// Template overlap and patch belt; default a tenth of the tile (§3.1).
+    pub overlap: Option<usize>,
+    pub candidates: usize,
+    pub path: PathSearch,
+    pub seed: u64,
+}
+
+impl Default for SomolConfig {
+    fn default() -> Self {
+        Self {
+            tiles: 8,
+            tile_size: None,
+            overlap: None,
+            candidates: 48,
+            path: PathSearch::Oscillating,
+            seed: 1,
+        }
+    }
+}
+
+impl SomolConfig {
+    /// Checks every count against its range.
+    pub fn validate(&self) -> Result<()> {
+        check_range("--tiles", self.tiles, &TILES)?;
+        check_range("--candidates", self.candidates, &CANDIDATES)?;
+        if let Some(o) = self.overlap {
+            check_range("--overlap", o, &OVERLAP)?;
+        }
+        if let Some(t) = self.tile_size {
+            check_range("--tile-size", t, &TILE_SIZE)?;
+        }
+        Ok(())
+    }
+
+    /// The tile-set settings for `sample`, or for the side of a given
+    /// `template` (its smaller side), checked so that the atlas of all tiles
+    /// in one row fits the image limits and memory.
+    pub fn settings(
+        &self,
+        sample: &ColorImage,
+        template: Option<&ColorImage>,
+    ) -> Result<TileSetSettings> {
+        self.validate()?;
+        let size = match (template, self.tile_size) {
+            (Some(t), _) => t.width.min(t.height),
+            (None, Some(s)) => s,
+            (None, None) => (sample.width.min(sample.height) / 2).min(256),
+        };
+        let overlap = self.overlap.unwrap_or((size / 10).max(2));
+        ensure!(
+            2 * overlap < size,
+            "--overlap {overlap} must be under half the {size}-pixel tile: give a smaller --overlap or a larger --tile-size"
+        );
+        let atlas = "--tiles or --tile-size (the atlas)";
+        check_grid(self.tiles, 1, (size, size), atlas, &Budget::default())?;
+        Ok(TileSetSettings {
+            tiles: self.tiles,
+            min_size: (size * 4 / 5).max(2 * overlap + 1),
+            max_size: size,
+            overlap,
+            belt: overlap,
+            margin: 2,
+            candidates: self.candidates,
+            refine: 4,
+            path: self.path,
+            seed: self.seed,
+        })
+    }
+}
+
+/// An ω-tile set to make (Dong, Zhou and Paul).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OmegaConfig {
+    /// The set: 8 (4 patches), 17 (5) or 38 (6) tiles.
+    pub set: usize,
+    /// Tile side; default 5/8 of the sample's smaller side, even.
+    pub tile_size: Option<usize>,
+    /// N_p, N_g and N_o (0 = run all N_g) of the immune search.
+    pub population: usize,
+    pub generations: usize,
+    pub patience: usize,
+    /// Random patch sets whose affinity `ais.json` reports (0 = none).
+    pub baseline: usize,
+    pub seed: u64,
+}
+
+impl Default for OmegaConfig {
+    fn default() -> Self {
+        let ais = AisSettings::default();
+        Self {
+            set: 38,
+            tile_size: None,
+            population: ais.population,
+            generations: ais.generations,
+            patience: ais.patience,
+            baseline: 100,
+            seed: ais.seed,
+        }
+    }
+}
+
+impl OmegaConfig {
+    /// Checks every count against its range and the set's size.
+    pub fn validate(&self) -> Result<()> {
+        check_range("--population", self.population, &POPULATION)?;
+        check_range("--generations", self.generations, &GENERATIONS)?;
+        check_range("--patience", self.patience, &PATIENCE)?;
+        check_range("--baseline", self.baseline, &BASELINE)?;
+        if let Some(t) = self.tile_size {
+            check_range("--tile-size", t, &TILE_SIZE)?;
+        }
+        OmegaSet::of_size(self.set).map(drop)
+    }
+
+    /// The tile set's corner colours.
+    pub fn omega_set(&self) -> Result<OmegaSet> {
+        OmegaSet::of_size(self.set)
+    }
+
+    /// The tile side for `sample`.
+    pub fn tile_side(&self, sample: &ColorImage) -> usize {
+        self.tile_size
+            .unwrap_or((sample.width.min(sample.height) * 5 / 8) & !1)
+    }
+
+    /// The immune search's settings: the paper's, with these counts.
+    pub fn ais_settings(&self) -> AisSettings {
+        AisSettings {
+            population: self.population,
+            generations: self.generations,
+            patience: if self.patience == 0 {
+                usize::MAX
+            } else {
+                self.patience
+            },
+            seed: self.seed,
+            ..AisSettings::default()
+        }
+    }
+}
+
+/// The settings of `tiles make`, by method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MakeConfig {
+    Somol(SomolConfig),
+    Omega(OmegaConfig),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn counts_out_of_range_are_refused_by_flag() {
+        assert!(SomolConfig::default().validate().is_ok());
+        assert!(OmegaConfig::default().validate().is_ok());
+        let huge = usize::MAX;
+        let somol = [
+            SomolConfig {
+                candidates: huge,
+                ..Default::default()
+            },
+            SomolConfig {
+                overlap: Some(0),
+                ..Default::default()
+            },
+            SomolConfig {
+                tiles: 0,
+                ..Default::default()
+            },
+        ];
+        for (c, flag) in somol.iter().zip(["--candidates", "--overlap", "--tiles"]) {
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains(flag) && e.contains("out of range"), "{e}");
+        }
+        let omega = [
+            OmegaConfig {
+                population: huge,
+                ..Default::default()
+            },
+            OmegaConfig {
+                baseline: huge,
+                ..Default::default()
+            },
+        ];
+        for (c, flag) in omega.iter().zip(["--population", "--baseline"]) {
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains(flag) && e.contains("out of range"), "{e}");
+        }
+        let e = OmegaConfig {
+            set: 9,
+            ..Default::default()
+        }
+        .validate()
+        .unwrap_err();
+        assert!(e.to_string().contains("--set 8, 17 or 38"), "{e}");
+    }
+
+    #[test]
+    fn the_overlap_must_stay_under_half_the_tile() {
+        let sample = ColorImage::new(200, 200);
+        let c = SomolConfig {
+            tile_size: Some(96),
+            overlap: Some(48),
+            ..Default::default()
+        };
+        let e = c.settings(&sample, None).unwrap_err().to_string();
+        assert!(e.contains("--overlap 48"), "{e}");
+        let s = SomolConfig::default().settings(&sample, None).unwrap();
+        assert_eq!(
+            (s.max_size, s.min_size, s.overlap, s.margin),
+            (100, 80, 10, 2)
+        );
+    }
+}
