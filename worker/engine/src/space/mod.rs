@@ -1,0 +1,302 @@
+//! The padded reference vectors of one global index range (ARCHITECTURE §3.2–§3.3),
+//! in 64-byte aligned memory with [`SLACK`] readable bytes after the last
+//! vector, as the SIMD kernels scan them (Stahlhut §7).
+//!
+//! A space either holds every vector ([`Storage::Dense`], `stride` bytes per
+//! sample pixel) or only the sample planes they are cut from
+//! ([`Storage::Planes`], about one byte per pixel), gathering each block of
+//! vectors into a small buffer just before the kernel scans it. Both give the
+//! kernels the same bytes, so the answers are the same.
+
+mod build;
+mod gather;
+mod storage;
+
+use std::borrow::Cow;
+use std::ops::Range;
+use std::sync::OnceLock;
+
+use crate::error::{EngineError, Result};
+use crate::kernel::{Params, PruneStats};
+use crate::layout::{Layout, SLACK};
+use crate::merge::Hit;
+use crate::positions::Positions;
+use crate::window::{Dense, KeyIndex, KeyPlane, Sweep};
+
+use gather::{gather_range, write_span, PlaneSource, PlaneView, PIECE};
+pub use storage::{Storage, DENSE_LIMIT};
+
+/// A zeroed byte buffer whose start is 64-byte aligned, so that a 64-byte SIMD
+/// load of a vector at a multiple-of-64 offset never splits a cache line.
+#[derive(Debug, Clone)]
+pub(crate) struct AlignedBytes {
+    buf: Vec<u8>,
+    offset: usize,
+    len: usize,
+}
+
+impl AlignedBytes {
+    pub(crate) fn zeroed(len: usize) -> Self {
+        let buf = vec![0u8; len + 64];
+        let offset = buf.as_ptr().align_offset(64).min(64);
+        Self { buf, offset, len }
+    }
+
+    pub(crate) fn as_slice(&self) -> &[u8] {
+        &self.buf[self.offset..self.offset + self.len]
+    }
+
+    pub(crate) fn as_mut_slice(&mut self) -> &mut [u8] {
+        &mut self.buf[self.offset..self.offset + self.len]
+    }
+}
+
+/// Vectors per block a plane-backed space gathers for one kernel pass (a few
+/// hundred kilobytes: the block stays in the core's L2 while it is scanned).
+const BLOCK: usize = 1024;
+
+#[derive(Debug, Clone)]
+enum Data {
+    Dense(AlignedBytes),
+    Planes(PlaneSource),
+}
+
+/// Padded reference vectors of one contiguous range of global indices.
+#[derive(Debug, Clone)]
+pub struct VectorSpace {
+    layout: Layout,
+    start: u64,
+    len: usize,
+    data: Data,
+    /// The level's positions (all of them; the space holds `start..start + len`).
+    positions: Positions,
+    /// The vectors in key order, built on the first windowed search of a
+    /// dense space (ARCHITECTURE §3.5).
+    keys: OnceLock<Option<KeyIndex>>,
+    /// The keys of a plane-backed space, built on its first windowed search.
+    key_plane: OnceLock<Option<KeyPlane>>,
+}
+
+/// The value of `cell`, built by `build` if it is empty. Unlike
+/// `OnceLock::get_or_init`, nobody waits for somebody else's build: the keys
+/// are built with rayon, and a rayon thread that waited for a build inside
+/// another search could be the thread the build itself needs (a deadlock
+/// under concurrent searches). Threads that find the cell empty at the same
+/// time each build; the first value stored wins, and all are equal.
+fn once<T>(cell: &OnceLock<T>, build: impl FnOnce() -> T) -> &T {
+    if let Some(v) = cell.get() {
+        return v;
+    }
+    let _ = cell.set(build());
+    cell.get().expect("set above or by another thread")
+}
+
+impl VectorSpace {
+    pub fn layout(&self) -> Layout {
+        self.layout
+    }
+
+    /// How the vectors are held: [`Storage::Dense`] or [`Storage::Planes`].
+    pub fn storage(&self) -> Storage {
+        match self.data {
+            Data::Dense(_) => Storage::Dense,
+            Data::Planes(_) => Storage::Planes,
+        }
+    }
+
+    /// First global index held.
+    pub fn start(&self) -> u64 {
+        self.start
+    }
+
+    /// One past the last global index held.
+    pub fn end(&self) -> u64 {
+        self.start + self.len as u64
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Errors unless `range` is non-empty and inside the indices held here.
+    pub fn check_range(&self, range: &std::ops::Range<u64>) -> Result<()> {
+        if range.start >= range.end {
+            return Err(EngineError::Empty("index range"));
+        }
+        if range.start < self.start() || range.end > self.end() {
+            return Err(EngineError::Range {
+                start: range.start,
+                end: range.end,
+                space_start: self.start(),
+                space_end: self.end(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Sample position of a global index held here (None for raw spaces).
+    pub fn position(&self, index: u64) -> Option<[u32; 2]> {
+        (self.start..self.end())
+            .contains(&index)
+            .then(|| self.positions.get(index))
+            .flatten()
+    }
+
+    /// Padded bytes of the vector with this global index (gathered from the
+    /// planes for a plane-backed space).
+    pub fn vector(&self, index: u64) -> Option<Cow<'_, [u8]>> {
+        let i = index.checked_sub(self.start)? as usize;
+        if i >= self.len {
+            return None;
+        }
+        let s = self.layout.stride();
+        match &self.data {
+            Data::Dense(d) => Some(Cow::Borrowed(&d.as_slice()[i * s..(i + 1) * s])),
+            Data::Planes(src) => {
+                let [x, y] = self.positions.get(index)?;
+                let mut v = vec![0u8; write_span(&self.layout, &src.geometry)];
+                src.gather_run(&self.layout, x as usize, y as usize, 1, &mut v, 0);
+                v.truncate(s);
+                Some(Cow::Owned(v))
+            }
+        }
+    }
+
+    /// Bytes of vector data (without slack) if every vector were built.
+    pub fn bytes(&self) -> usize {
+        self.len * self.layout.stride()
+    }
+
+    /// Bytes this space holds: the vectors, or the planes and positions, and
+    /// the keys once a search has built them.
+    pub fn held_bytes(&self) -> u64 {
+        let keys = self
+            .keys
+            .get()
+            .and_then(Option::as_ref)
+            .map_or(0, KeyIndex::bytes)
+            + self
+                .key_plane
+                .get()
+                .and_then(Option::as_ref)
+                .map_or(0, KeyPlane::bytes);
+        keys + match &self.data {
+            Data::Dense(_) => (self.bytes() + SLACK) as u64 + self.positions.bytes(),
+            Data::Planes(src) => src.bytes() + self.positions.bytes(),
+        }
+    }
+
+    /// The vectors in key order for windowed search, built on first use;
+    /// `None` for a plane-backed space or a layout without a lo part.
+    fn key_index(&self) -> Option<&KeyIndex> {
+        let Data::Dense(d) = &self.data else {
+            return None;
+        };
+        once(&self.keys, || {
+            KeyIndex::build(&self.layout, d.as_slice(), self.len)
+        })
+        .as_ref()
+    }
+
+    /// The keys of a plane-backed space, built on first use; `None` for a
+    /// dense space, a layout without a lo part or a parent window too large
+    /// for two-byte keys.
+    fn key_plane(&self) -> Option<&KeyPlane> {
+        let Data::Planes(src) = &self.data else {
+            return None;
+        };
+        once(&self.key_plane, || {
+            let p = src.parent.as_ref()?;
+            let pixels = &p.pixels[..p.pixels.len() - PIECE];
+            KeyPlane::build(pixels, p.width, p.row0, src.geometry.m)
+        })
+        .as_ref()
+    }
+
+    /// Whether a query with this mask can be searched by key windows here
+    /// (building the keys on first use).
+    pub(crate) fn keyed(&self, params: &Params, mask: &[u8]) -> bool {
+        match &self.data {
+            Data::Dense(_) => {
+                KeyIndex::applies(&self.layout, params, mask) && self.key_index().is_some()
+            }
+            Data::Planes(_) => self
+                .key_plane()
+                .is_some_and(|k| k.applies(&self.layout, params, mask)),
+        }
+    }
+
+    /// The windowed search of `queries` over `sw.range` from `start`
+    /// (ARCHITECTURE §3.5). Every query must pass [`VectorSpace::keyed`].
+    ///
+    /// # Panics
+    /// If the space has no keys.
+    pub(crate) fn search_keyed(
+        &self,
+        sw: &Sweep,
+        queries: &[(&[u8], &[u8])],
+        start: &[Hit],
+    ) -> (Vec<Hit>, PruneStats) {
+        match &self.data {
+            Data::Dense(d) => {
+                let dense = Dense {
+                    data: d.as_slice(),
+                    base: self.start,
+                };
+                let index = self.key_index().expect("a windowed search needs keys");
+                index.search(sw, &dense, queries, start)
+            }
+            Data::Planes(src) => {
+                let view = PlaneView {
+                    src,
+                    layout: &self.layout,
+                    positions: &self.positions,
+                };
+                let keys = self.key_plane().expect("a windowed search needs keys");
+                keys.search(sw, &view, queries, start)
+            }
+        }
+    }
+
+    /// Padded data of the global index range `range` plus the trailing slack
+    /// the kernels may read, when the vectors are held densely.
+    pub(crate) fn dense_slice(&self, range: Range<u64>) -> Option<&[u8]> {
+        let Data::Dense(d) = &self.data else {
+            return None;
+        };
+        let s = self.layout.stride();
+        let a = (range.start - self.start) as usize * s;
+        let b = (range.end - self.start) as usize * s;
+        Some(&d.as_slice()[a..b + SLACK])
+    }
+
+    /// Hands `f` the padded vectors of `range` in index order, with [`SLACK`]
+    /// bytes after them: `(bytes, count, first global index)`. A dense space
+    /// makes one call; a plane-backed one gathers blocks of [`BLOCK`] vectors
+    /// into one buffer and makes a call per block.
+    pub(crate) fn for_each_block(&self, range: Range<u64>, mut f: impl FnMut(&[u8], usize, u64)) {
+        match &self.data {
+            Data::Dense(_) => {
+                let n = (range.end - range.start) as usize;
+                if let Some(d) = self.dense_slice(range.clone()) {
+                    f(d, n, range.start);
+                }
+            }
+            Data::Planes(src) => {
+                let s = self.layout.stride();
+                let mut buf = AlignedBytes::zeroed(BLOCK * s + SLACK);
+                let mut a = range.start;
+                while a < range.end {
+                    let b = (a + BLOCK as u64).min(range.end);
+                    gather_range(src, &self.layout, &self.positions, a..b, buf.as_mut_slice());
+                    f(buf.as_slice(), (b - a) as usize, a);
+                    a = b;
+                }
+            }
+        }
+    }
+}
