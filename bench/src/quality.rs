@@ -30,6 +30,11 @@ pub const METHODS: [&str; 9] = [
     "solid",
 ];
 
+/// Methods run only when named: the block method's variants and Embark's
+/// `texture-synthesis` (the peer; `cargo install texture-synthesis-cli
+/// --locked`), for the block method's comparison.
+pub const EXTRA_METHODS: [&str; 3] = ["block-scanline", "block-path", "embark"];
+
 #[derive(Args, Debug)]
 pub struct QualityArgs {
     /// Textures: PNG files or directories of them (default: the repository's
@@ -38,7 +43,9 @@ pub struct QualityArgs {
     /// skipped; a name seen twice once.
     pub inputs: Vec<PathBuf>,
     /// Methods to run, of: block, parallel-reduced, parallel-half,
-    /// parallel-5, parallel-7, somol, omega, morph, solid.
+    /// parallel-5, parallel-7, somol, omega, morph, solid; and, only when
+    /// named, block-scanline, block-path and embark (Embark's
+    /// texture-synthesis, the peer).
     #[arg(long, value_delimiter = ',', default_values_t = METHODS.map(String::from))]
     pub methods: Vec<String>,
     /// Skip samples whose larger side exceeds this (0 = none).
@@ -187,6 +194,26 @@ impl Job<'_> {
         m.run()
     }
 
+    /// Embark's `texture-synthesis generate` of `sample` at `size` into
+    /// `out`, with the same threads; its log in `log.txt`.
+    fn peer(&self, sample: &str, out: &str, size: &str) -> Result<(f64, u64)> {
+        let log = std::fs::File::create(self.dir.join("log.txt"))?;
+        let mut m = crate::cases::measured(Path::new("texture-synthesis"))?;
+        m.cmd
+            .args(["--out-size", size, "--no-progress", "--out", out]);
+        if let Some(t) = self.threads {
+            m.cmd.args(["--threads", &t.to_string()]);
+        }
+        m.cmd
+            .args(["generate", sample])
+            .stdin(Stdio::null())
+            .stdout(log.try_clone()?)
+            .stderr(log);
+        m.run().context(
+            "texture-synthesis failed or is not installed (cargo install texture-synthesis-cli --locked)",
+        )
+    }
+
     fn path(&self, name: &str) -> String {
         self.dir.join(name).display().to_string()
     }
@@ -201,8 +228,19 @@ impl Job<'_> {
         let out = self.path("out.png");
         let tile = (w.min(h) / 2) & !1;
         match method {
-            "block" => {
-                let (t, m) = self.texsyn(&["synth", &sample, "-o", &out, "--size", &size])?;
+            "block" | "block-scanline" | "block-path" => {
+                let mut args = vec!["synth", &sample, "-o", &out, "--size", &size];
+                match method {
+                    "block-scanline" => args.extend(["--method", "scanline"]),
+                    "block-path" => args.extend(["--stitch", "path"]),
+                    _ => {}
+                }
+                let (t, m) = self.texsyn(&args)?;
+                let img = imaging::load_color(Path::new(&out))?;
+                Ok((img.clone(), compare::compare(self.image, &img)?, None, t, m))
+            }
+            "embark" => {
+                let (t, m) = self.peer(&sample, &out, &size)?;
                 let img = imaging::load_color(Path::new(&out))?;
                 Ok((img.clone(), compare::compare(self.image, &img)?, None, t, m))
             }
@@ -303,9 +341,10 @@ fn mean_scores(all: Vec<Scores>) -> Scores {
 pub fn run(a: &QualityArgs) -> Result<()> {
     for m in &a.methods {
         ensure!(
-            METHODS.contains(&m.as_str()),
-            "unknown method '{m}': give some of {}",
-            METHODS.join(", ")
+            METHODS.contains(&m.as_str()) || EXTRA_METHODS.contains(&m.as_str()),
+            "unknown method '{m}': give some of {}, {}",
+            METHODS.join(", "),
+            EXTRA_METHODS.join(", ")
         );
     }
     let texsyn = crate::cases::sibling_binary("texsyn", a.texsyn.as_deref(), "--texsyn")?;
