@@ -69,7 +69,7 @@ pub struct MakeArgs {
     /// optimum (slower at wide overlaps).
     #[arg(long, value_enum, default_value_t = SomolConfig::default().path)]
     pub path: PathSearch,
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = SomolConfig::default().seed)]
     pub seed: u64,
     /// ω-tiles: the set, 8 (4 patches), 17 (5) or 38 (6).
     #[arg(long, default_value_t = OmegaConfig::default().set)]

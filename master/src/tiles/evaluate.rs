@@ -1,4 +1,4 @@
-//! The affinity evaluation of ω-tile patch sets (Dong, Zhou and Paul §4.1,
+//! The affinity evaluation of ω-tile patch sets (Dong, Zhou and Paul §4,
 //! eq. 1–2): each intermediate tile's best translation in a coarse copy of
 //! the sample. The searches are exact and go through the project's search
 //! backend, so they run in-process or on the cluster with the same answers;

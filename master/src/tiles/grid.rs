@@ -1,4 +1,4 @@
-//! Index-matrix tiling (Somol–Haindl §3.2, Fig. 10): a tile set laid out in
+//! Index-matrix tiling (Somol–Haindl §3, Fig. 10): a tile set laid out in
 //! a grid by an index matrix of tile numbers, read from CSV or JSON or drawn
 //! at random, checked against the image and memory limits before any work.
 
@@ -124,7 +124,7 @@ pub enum Layout<'a> {
 
 /// The index matrix of `layout` for a set of `tiles` tiles of size `tile`,
 /// checked ([`check_index`], [`check_grid`]) before any image is made: a
-/// drawn grid of ω-tiles of `omega` comes from the scan-line tiler (§3.2 of
+/// drawn grid of ω-tiles of `omega` comes from the scan-line tiler (§3.1 of
 /// Dong, Zhou and Paul), one of other tiles from [`random_index`]; a given
 /// matrix of ω-tiles must agree on every shared corner.
 pub fn layout(

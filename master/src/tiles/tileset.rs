@@ -1,4 +1,4 @@
-//! Patched tile sets (Somol–Haindl §3.2): the template and tiles derived
+//! Patched tile sets (Somol–Haindl §3): the template and tiles derived
 //! from it, each with one sample patch inserted inside its margin.
 
 use rand::{Rng, SeedableRng};
