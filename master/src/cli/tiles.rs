@@ -11,7 +11,6 @@ use super::args::parse_pair;
 use super::progress::Bars;
 use crate::budget::Budget;
 use crate::imaging::{self, paths, OutputDir};
-use crate::search::SearchBackend;
 use crate::tiles::{self, Layout, MakeConfig, OmegaConfig, PathSearch, SomolConfig, TileSetFile};
 
 #[derive(Subcommand, Debug)]
@@ -88,14 +87,8 @@ pub struct MakeArgs {
     /// search's (0 = none).
     #[arg(long, default_value_t = OmegaConfig::default().baseline)]
     pub baseline: usize,
-    /// Search threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
     #[command(flatten)]
-    pub cluster: super::ClusterArgs,
-    /// No progress bar.
-    #[arg(short, long)]
-    pub quiet: bool,
+    pub run: super::RunArgs,
 }
 
 #[derive(Args, Debug)]
@@ -162,12 +155,12 @@ pub fn run(cmd: TilesCommand) -> Result<()> {
 
 fn make(a: &MakeArgs) -> Result<()> {
     let config = MakeConfig::try_from(a)?;
-    let pool = super::thread_pool(a.threads)?;
+    let pool = a.run.pool()?;
     let started = Instant::now();
     let sample = imaging::load_color(&a.sample)?;
     let name = a.sample.display().to_string();
     let mut inputs = vec![("sample", a.sample.as_path())];
-    let bars = Bars::new(a.quiet);
+    let bars = Bars::new(a.run.quiet);
     let made = match &config {
         MakeConfig::Somol(c) => {
             let template = a.template.as_deref().map(imaging::load_color).transpose()?;
@@ -195,19 +188,17 @@ fn make(a: &MakeArgs) -> Result<()> {
             let mut evaluator = tiles::omega_evaluator(c, &set, &sample)?;
             let out = OutputDir::create(&a.output, &inputs)?;
             let made = pool.install(|| {
-                let (workers, mut backend) = search_backend(a)?;
+                let pixels = sample.width * sample.height;
+                let mut opened = a.run.open(c.seed, pixels)?;
                 let sample = (&sample, name.as_str());
-                let (dir, b) = (out.path(), backend.as_mut());
-                let made = tiles::make_omega(c, &mut evaluator, b, sample, dir, &bars, started);
-                drop(backend);
-                drop(workers);
-                made
+                let b = &mut opened.search;
+                tiles::make_omega(c, &mut evaluator, b, sample, out.path(), &bars, started)
             })?;
             out.commit()?;
             made
         }
     };
-    if !a.quiet {
+    if !a.run.quiet {
         let kind = if made.best_f.is_some() {
             "ω-tiles"
         } else {
@@ -227,22 +218,6 @@ fn make(a: &MakeArgs) -> Result<()> {
         );
     }
     Ok(())
-}
-
-/// The search backend of the ω-tiles' immune search (the cluster when asked
-/// for, else in-process) and the workers it started, to keep while it runs.
-fn search_backend(a: &MakeArgs) -> Result<(impl Sized, Box<dyn SearchBackend>)> {
-    let engine = texsyn_engine::Engine::default();
-    let cluster = a.cluster.setup()?;
-    let (options, local_workers, ssh_workers) = match cluster {
-        Some(c) => (Some(c.options), c.local, c.ssh),
-        None => (None, None, None),
-    };
-    let backend: Box<dyn SearchBackend> = match options {
-        Some(o) => Box::new(crate::cluster::ClusterSearch::connect(o, engine)?),
-        None => Box::new(crate::search::LocalSearch::new(engine)),
-    };
-    Ok(((local_workers, ssh_workers), backend))
 }
 
 /// Refuses an output that would overwrite a file of the set in `dir` or an

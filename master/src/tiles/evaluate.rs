@@ -7,7 +7,7 @@
 use std::collections::HashMap;
 
 use anyhow::{ensure, Result};
-use texsyn_engine::{Geometry, Metric, Params, Plane, Positions, QueryBatch, Sample, Weights};
+use texsyn_engine::{Geometry, Plane, Positions, QueryBatch, Sample};
 
 use super::ais::Gene;
 use super::omega::OmegaSet;
@@ -85,22 +85,14 @@ impl<'a> Evaluator<'a> {
             &self.coarse.data,
             None,
         )?;
-        backend.load_level(&LevelData {
-            level: 0,
-            geometry: Geometry::new(self.side, 0)?,
-            params: Params {
-                metric: Metric::L2,
-                weights: Weights::new(1, 1)?,
-            },
-            sample: Sample {
-                fine: plane,
-                parent: None,
-            },
-            positions: &self.positions,
-            levels: 1,
-            expected_queries: 1 << 16,
-            colour_vectors: None,
-        })
+        backend.load_level(&LevelData::single_plane(
+            0,
+            1,
+            Geometry::new(self.side, 0)?,
+            plane,
+            &self.positions,
+            1 << 16,
+        )?)
     }
 
     /// A gene at the evaluation level (clamped so the patch fits).
