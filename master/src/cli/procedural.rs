@@ -133,7 +133,8 @@ pub struct TransformArgs {
     /// Number of frames (at least 2).
     #[arg(long)]
     pub frames: usize,
-    /// Output directory: frame_0000.png..., transform.gif, transform.webp, transform.json.
+    /// Output directory: frame_0000.png..., transform.gif, transform.webp, transform.json;
+    /// a new or empty one, or an earlier output, replaced whole once all is written.
     #[arg(short, long)]
     pub output: PathBuf,
     /// The catalogue built by `texsyn match catalogue`.

@@ -1,5 +1,6 @@
 //! Frame sequences as looping animations: GIF (the `image` crate's encoder)
-//! and lossless animated WebP.
+//! and lossless animated WebP, written one frame at a time ([`GifWriter`],
+//! [`WebpWriter`]) or from a whole set.
 //!
 //! The `image` crate encodes still lossless WebP only, and the crates that
 //! write animated WebP bind the C libwebp. An animated WebP is a RIFF
