@@ -1308,3 +1308,20 @@ fn coordinate_methods_refuse_what_exceeds_the_memory_budget() {
     assert!(err.contains("of memory") && err.contains("--size"), "{err}");
     assert!(!solid.join("solid.raw").exists());
 }
+
+/// `compare` refuses images over 4096² with a message naming the fix
+/// (two 8192² images once aborted on memory).
+#[test]
+fn compare_refuses_images_over_its_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let big = dir.path().join("big.png");
+    image::GrayImage::from_pixel(4097, 4097, image::Luma([90]))
+        .save(&big)
+        .unwrap();
+    let small = assets().join("brick_color_96.png");
+    let o = texsyn(&["compare", s(&small), s(&big)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("4097x4097") && err.contains("crop"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}

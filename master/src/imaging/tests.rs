@@ -618,3 +618,33 @@ fn special_and_cut_files_are_refused_before_reading() {
     let e = Volume::load(&header).unwrap_err();
     assert!(e.to_string().contains("not a regular file"), "{e:#}");
 }
+
+/// Coordinate maps and volumes (header and raw data) given as a FIFO or a
+/// device are refused before they are opened or read.
+#[cfg(unix)]
+#[test]
+fn coordinate_maps_and_volumes_refuse_special_files() {
+    let e = format!("{:#}", load_coord_map(Path::new("/dev/zero")).unwrap_err());
+    assert!(e.contains("not a regular file"), "{e}");
+    let dir = tempfile::tempdir().unwrap();
+    let v = crate::imaging::volume::Volume::new([2, 2, 2], 1, vec![7; 8]).unwrap();
+    v.save(dir.path(), "vol", None).unwrap();
+    let raw = dir.path().join("vol.raw");
+    std::fs::remove_file(&raw).unwrap();
+    let made = std::process::Command::new("mkfifo")
+        .arg(&raw)
+        .status()
+        .unwrap();
+    assert!(made.success(), "mkfifo");
+    let header = dir.path().join("vol.json");
+    let e = format!(
+        "{:#}",
+        crate::imaging::volume::Volume::load(&header).unwrap_err()
+    );
+    assert!(e.contains("not a regular file"), "{e}");
+    let e = format!(
+        "{:#}",
+        crate::imaging::volume::Volume::load(Path::new("/dev/zero")).unwrap_err()
+    );
+    assert!(e.contains("not a regular file"), "{e}");
+}
