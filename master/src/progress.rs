@@ -15,6 +15,8 @@ pub trait Progress: Sync {
     fn set_done(&self, _done: u64) {}
     /// The stage ended.
     fn finish(&self) {}
+    /// A one-line summary of a finished stage (where the time went).
+    fn note(&self, _text: &str) {}
 }
 
 /// No progress output.

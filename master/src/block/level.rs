@@ -113,6 +113,17 @@ pub(super) fn run_level(
         copy = stats.copy_seconds,
         "level time"
     );
+    progress.note(&format!(
+        "level {l}: {} queries in {} batches; search {:.3} s{} on {threads} threads, choose {:.3} s, queries {:.3} s, copy {:.3} s",
+        stats.queries,
+        stats.batches,
+        stats.search_seconds,
+        busy.map(|b| format!(" ({:.0}% idle)", 100.0 * (1.0 - b / (threads as f64 * stats.search_seconds).max(1e-12)).max(0.0)))
+            .unwrap_or_default(),
+        stats.choose_seconds,
+        stats.query_seconds,
+        stats.copy_seconds
+    ));
     let report = LevelReport {
         level: l,
         canvas: [lw, lh],

@@ -67,6 +67,21 @@ impl Progress for Bars {
             b.finish_and_clear();
         }
     }
+
+    fn note(&self, text: &str) {
+        if self.shows_notes() {
+            eprintln!("{text}");
+        }
+    }
+}
+
+impl Bars {
+    /// Whether notes go to the terminal: not with `--quiet`, and not when
+    /// stderr is a pipe or a file (the notes are in the `RUST_LOG=info` log).
+    fn shows_notes(&self) -> bool {
+        use std::io::IsTerminal;
+        !self.quiet && std::io::stderr().is_terminal()
+    }
 }
 
 impl Drop for Bars {
