@@ -126,7 +126,9 @@ impl OutputDir {
 
     /// Puts the written set in place of the target, replacing an older set.
     pub fn commit(mut self) -> Result<()> {
-        let old = self.tmp.with_extension("old");
+        let mut old = self.tmp.clone().into_os_string();
+        old.push(".old");
+        let old = PathBuf::from(old);
         let had_old = self.target.exists();
         if had_old {
             fs::rename(&self.target, &old)
