@@ -28,17 +28,16 @@ pub struct OutputDir {
     _registration: Registration,
 }
 
-/// Checks that `target` can take a directory output of `what` (a new path,
-/// an empty directory or an earlier output set) and that none of `inputs`
+/// Checks that `target` can take a directory output (a new path, an empty
+/// directory or an earlier output set) and that none of `inputs`
 /// (flag, path) lies inside it.
 pub fn check_output_dir(target: &Path, inputs: &[(&str, &Path)]) -> Result<()> {
-    let name = target.file_name().with_context(|| {
+    target.file_name().with_context(|| {
         format!(
             "-o {} has no directory name; name the output directory",
             target.display()
         )
     })?;
-    let _ = name;
     match fs::symlink_metadata(target) {
         Err(_) => {}
         Ok(m) if m.is_dir() => {
@@ -117,11 +116,6 @@ impl OutputDir {
     /// Where to write the files now.
     pub fn path(&self) -> &Path {
         &self.tmp
-    }
-
-    /// The final path of `name` once committed (for messages).
-    pub fn target(&self) -> &Path {
-        &self.target
     }
 
     /// Puts the written set in place of the target, replacing an older set.
