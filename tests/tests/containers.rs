@@ -32,6 +32,8 @@ const FAULT_LEVEL: usize = 2;
 const SIDE: usize = 768;
 /// The uid and gid the image runs as.
 const UID: u32 = 10001;
+/// Runs of the partition scenario at most, for a cut that lands late.
+const CUT_TRIES: usize = 3;
 /// Where the image keeps the bundled textures.
 const TEXTURES: &str = "/usr/local/share/texsyn/textures";
 const WORKERS: [&str; 3] = ["worker1", "worker2", "worker3"];
@@ -455,49 +457,60 @@ fn compose_cluster_builds_runs_survives_a_kill_and_a_partition_and_cleans_up() {
     docker(&["start", &victim]).unwrap();
     p.wait_healthy(&WORKERS, Duration::from_secs(60));
 
-    // docker network disconnect mid-level, connected again once dropped.
+    // docker network disconnect mid-level, connected again once dropped. The
+    // disconnect takes effect some hundred milliseconds after it is asked
+    // for, longer than a whole coarse level on a busy host; where it landed
+    // past the fault's level, the run is repeated (every run's output and
+    // drop count still checked), and the last try must land in it.
     let net = p.network();
     let cut = p.container("worker2");
-    let mut m = p.master("cut");
-    m.wait_for(Duration::from_secs(60), level_start(FAULT_LEVEL))
-        .unwrap_or_else(|| panic!("level {FAULT_LEVEL} never started: {}", m.log.text()));
-    docker(&["network", "disconnect", &net, &cut]).unwrap();
-    let cut_at = m.started.elapsed();
-    let dropped = m.wait_for(Duration::from_secs(30), |l| {
-        l.contains("dropping worker") && l.contains("worker2")
-    });
-    docker(&["network", "connect", "--alias", "worker2", &net, &cut]).unwrap();
-    eprintln!(
-        "cut at {cut_at:?}, connected again at {:?}",
-        m.started.elapsed()
-    );
-    assert!(
-        dropped.is_some(),
-        "the master never dropped worker2: {}",
-        m.log.text()
-    );
-    let took = m.finish("cut");
-    assert!(
-        std::fs::read(p.out("cut.png")).unwrap() == truth,
-        "the run with a cut-off worker differs from the local engine"
-    );
-    assert!(took <= budget, "partition: {took:?} over {budget:?}");
-    let report: Value = serde_json::from_slice(&std::fs::read(p.out("cut.json")).unwrap()).unwrap();
-    let drop = events(&report, "drop", "worker2");
-    let rejoin = events(&report, "rejoin", "worker2");
-    eprintln!("partition: {took:?}; drop {drop:?}; rejoin {rejoin:?}");
-    assert_eq!(drop.len(), 1, "{report:#}");
-    assert_eq!(
-        drop[0]["level"], FAULT_LEVEL,
-        "dropped mid-level: {}",
-        drop[0]
-    );
-    assert!(
-        rejoin.iter().any(|e| e["level"]
-            .as_u64()
-            .is_some_and(|l| (l as usize) < FAULT_LEVEL)),
-        "worker2 taken back at a later level: {report:#}"
-    );
+    for attempt in 1..=CUT_TRIES {
+        let mut m = p.master(&format!("cut{attempt}"));
+        m.wait_for(Duration::from_secs(60), level_start(FAULT_LEVEL))
+            .unwrap_or_else(|| panic!("level {FAULT_LEVEL} never started: {}", m.log.text()));
+        docker(&["network", "disconnect", &net, &cut]).unwrap();
+        let cut_at = m.started.elapsed();
+        let dropped = m.wait_for(Duration::from_secs(30), |l| {
+            l.contains("dropping worker") && l.contains("worker2")
+        });
+        docker(&["network", "connect", "--alias", "worker2", &net, &cut]).unwrap();
+        eprintln!(
+            "cut {attempt} at {cut_at:?}, connected again at {:?}",
+            m.started.elapsed()
+        );
+        assert!(
+            dropped.is_some(),
+            "the master never dropped worker2: {}",
+            m.log.text()
+        );
+        let took = m.finish("cut");
+        assert!(
+            std::fs::read(p.out(&format!("cut{attempt}.png"))).unwrap() == truth,
+            "the run with a cut-off worker differs from the local engine"
+        );
+        assert!(took <= budget, "partition: {took:?} over {budget:?}");
+        let report: Value =
+            serde_json::from_slice(&std::fs::read(p.out(&format!("cut{attempt}.json"))).unwrap())
+                .unwrap();
+        let drop = events(&report, "drop", "worker2");
+        let rejoin = events(&report, "rejoin", "worker2");
+        eprintln!("partition: {took:?}; drop {drop:?}; rejoin {rejoin:?}");
+        assert_eq!(drop.len(), 1, "{report:#}");
+        let level = assert_mid_level(drop[0]);
+        if level != FAULT_LEVEL as u64 && attempt < CUT_TRIES {
+            eprintln!("the cut landed in level {level}, after level {FAULT_LEVEL}: again");
+            p.wait_healthy(&WORKERS, Duration::from_secs(60));
+            continue;
+        }
+        assert_eq!(level, FAULT_LEVEL as u64, "dropped mid-level: {}", drop[0]);
+        assert!(
+            rejoin.iter().any(|e| e["level"]
+                .as_u64()
+                .is_some_and(|l| (l as usize) < FAULT_LEVEL)),
+            "worker2 taken back at a later level: {report:#}"
+        );
+        break;
+    }
 
     // Down: nothing of the project is left.
     let left = p.down();
