@@ -1119,3 +1119,57 @@ fn solid_on_local_workers_matches_the_local_engine() {
         "the cluster's solid differs from the local engine's"
     );
 }
+
+/// Repetition control answers from the exact search's near-ties: the same
+/// bytes on 1 and 2 threads and with 2 local worker processes (whose top-k
+/// lists the master filters), and a different output from the plain best
+/// match.
+#[test]
+fn repetition_control_is_identical_over_threads_and_workers() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |name: &str, extra: &[&str]| -> Vec<u8> {
+        let out = dir.path().join(format!("{name}.png"));
+        let r = std::process::Command::new(harness::binary("texsyn"))
+            .arg("synth")
+            .arg(texture_path("brick_color_96.png"))
+            .args([
+                "--size", "160x144", "--levels", "3", "--seed", "3", "-q", "-o",
+            ])
+            .arg(&out)
+            .args(extra)
+            .stdin(std::process::Stdio::null())
+            .output()
+            .unwrap();
+        assert!(
+            r.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&r.stderr)
+        );
+        std::fs::read(&out).unwrap()
+    };
+    harness::binary("texsyn-worker");
+    let control = ["--repeat-percent", "25"];
+    let one = run("one", &[&control[..], &["--threads", "1"]].concat());
+    let two = run("two", &[&control[..], &["--threads", "2"]].concat());
+    assert!(one == two, "repetition control differs on 1 and 2 threads");
+    let workers = run(
+        "workers",
+        &[
+            &control[..],
+            &[
+                "--search",
+                "cluster,cluster,cluster",
+                "--local-workers",
+                "2",
+                "--require-cluster",
+            ],
+        ]
+        .concat(),
+    );
+    assert!(
+        one == workers,
+        "repetition control differs on 2 local workers"
+    );
+    let plain = run("plain", &["--threads", "2"]);
+    assert!(one != plain, "repetition control changed nothing");
+}

@@ -4,6 +4,7 @@
 use anyhow::{ensure, Result};
 use texsyn_engine::{Geometry, Metric, Weights};
 
+use super::repeats::RepeatControl;
 use crate::imaging::{self, ColorImage};
 
 /// How full synthesis grows a new texture.
@@ -95,6 +96,8 @@ pub struct Config {
     pub colour_search: bool,
     /// How copied blocks meet their neighbours.
     pub stitch: Stitch,
+    /// Repetition control over the exact search's near-ties (`None` = off).
+    pub repeats: Option<RepeatControl>,
 }
 
 impl Default for Config {
@@ -113,6 +116,7 @@ impl Default for Config {
             level_samples: Vec::new(),
             colour_search: false,
             stitch: Stitch::Hard,
+            repeats: None,
         }
     }
 }
@@ -154,6 +158,9 @@ impl Config {
             self.batch
         );
         Weights::new(self.weights.hi, self.weights.lo)?;
+        if let Some(r) = &self.repeats {
+            r.validate()?;
+        }
         ensure!(
             self.chroma_blur <= 8,
             "chroma blur radius {} is too large; use 0..=8",

@@ -6,12 +6,13 @@ use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
 use rayon::prelude::*;
-use texsyn_engine::{Geometry, Layout, Positions, QueryBatch};
+use texsyn_engine::{Geometry, Layout, Metric, Positions, QueryBatch, Slack};
 
 use super::canvas::{set_pixel, Canvas};
 use super::neighbourhood::{candidates, query, Shape};
 use super::plan::LevelSample;
 use super::queue::BlockQueue;
+use super::repeats::{self, RepeatControl, Usage};
 use super::{Config, Progress, Stitch};
 use crate::search::SearchBackend;
 
@@ -126,6 +127,15 @@ pub(super) fn fill_level(
     let stitch = (ctx.cfg.stitch == Stitch::Path && !ctx.scanline)
         .then(|| (canvas.defined.clone(), stitch_band(b, n)))
         .filter(|(_, o)| *o > 0);
+    // Repetition control: what is known before the search counts as used.
+    let mut usage = ctx.cfg.repeats.map(|_| {
+        let mut u = Usage::new(ctx.sample.lum.width, ctx.sample.lum.height);
+        for (k, _) in canvas.defined.iter().enumerate().filter(|(_, d)| **d) {
+            let [x, y] = canvas.copy[k];
+            u.add(x as usize, y as usize);
+        }
+        u
+    });
     while !queue.is_empty() {
         let t = Instant::now();
         batcher.choose(&mut queue, &grid);
@@ -162,19 +172,39 @@ pub(super) fn fill_level(
         let chosen = &batcher.chosen;
         stats.query_seconds += t.elapsed().as_secs_f64();
         let (t, busy) = (Instant::now(), texsyn_engine::busy_nanos());
-        let hits = backend.search(&batch)?;
+        let lists = match &ctx.cfg.repeats {
+            Some(r) => {
+                let slack: Vec<Slack> =
+                    (0..batch.len()).map(|q| slack(ctx, r, &batch, q)).collect();
+                backend.search_near_ties(&batch, r.candidates, &slack)?
+            }
+            None => backend
+                .search(&batch)?
+                .into_iter()
+                .map(|h| vec![h])
+                .collect(),
+        };
         stats.search_seconds += t.elapsed().as_secs_f64();
         stats.search_busy_seconds += (texsyn_engine::busy_nanos() - busy) as f64 * 1e-9;
         let t = Instant::now();
         ensure!(
-            hits.len() == chosen.len(),
+            lists.len() == chosen.len(),
             "search returned {} answers for {} queries",
-            hits.len(),
+            lists.len(),
             chosen.len()
         );
         stats.queries += chosen.len() as u64;
         stats.batches += 1;
-        for (&blk, hit) in chosen.iter().zip(&hits) {
+        for (&blk, hits) in chosen.iter().zip(&lists) {
+            let hit = match &usage {
+                Some(u) => repeats::pick(hits, |h| {
+                    ctx.positions
+                        .get(h.index)
+                        .map_or(u64::MAX, |p| u.block(p, b))
+                }),
+                None => hits.first().copied(),
+            }
+            .context("search returned no answer")?;
             let pos = ctx.positions.get(hit.index).with_context(|| {
                 format!(
                     "search answered index {} of {} references",
@@ -182,7 +212,7 @@ pub(super) fn fill_level(
                     ctx.positions.len()
                 )
             })?;
-            copy_block(canvas, &grid, blk, pos, ctx);
+            copy_block(canvas, &grid, blk, pos, ctx, usage.as_mut());
             if let Some((known, band)) = &stitch {
                 stitch_block(canvas, &grid, blk, pos, ctx, known, *band);
             }
@@ -278,7 +308,14 @@ impl Batcher {
 
 /// Copies the reference block centred at `pos` into block `blk`: only its
 /// undefined pixels, or all of them in scan-line synthesis.
-fn copy_block(canvas: &mut Canvas, grid: &Grid, blk: u32, pos: [u32; 2], ctx: &LevelContext) {
+fn copy_block(
+    canvas: &mut Canvas,
+    grid: &Grid,
+    blk: u32,
+    pos: [u32; 2],
+    ctx: &LevelContext,
+    mut usage: Option<&mut Usage>,
+) {
     let (b, w, h) = (grid.b, grid.w, grid.h);
     let (bx, by) = grid.xy(blk);
     let (rx, ry) = (pos[0] as usize - b / 2, pos[1] as usize - b / 2);
@@ -295,8 +332,33 @@ fn copy_block(canvas: &mut Canvas, grid: &Grid, blk: u32, pos: [u32; 2], ctx: &L
             let k = y * w + x;
             if ctx.scanline || !canvas.defined[k] {
                 set_pixel(canvas, k, ctx.sample, rx + i, ry + j);
+                if let Some(u) = usage.as_deref_mut() {
+                    u.add(rx + i, ry + j);
+                }
             }
         }
+    }
+}
+
+/// Repetition control's slack of query `q`: `slack` grey levels per known
+/// component, weighted as the distance weighs them (squared under L2), and
+/// `percent` of the best distance.
+fn slack(ctx: &LevelContext, r: &RepeatControl, batch: &QueryBatch, q: usize) -> Slack {
+    let mask = batch.mask(q);
+    let l = ctx.layout;
+    let known = |m: &[u8]| m.iter().filter(|&&m| m != 0).count() as u64;
+    let (hi, lo) = (
+        known(&mask[..l.hi_len]),
+        known(&mask[l.hi_pad..l.hi_pad + l.lo_len]),
+    );
+    let w = ctx.cfg.weights;
+    let per = match ctx.cfg.metric {
+        Metric::L1 => u64::from(r.slack),
+        Metric::L2 => u64::from(r.slack).pow(2),
+    };
+    Slack {
+        absolute: (u64::from(w.hi) * hi + u64::from(w.lo) * lo) * per,
+        per_mille: r.percent * 10,
     }
 }
 

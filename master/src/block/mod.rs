@@ -30,9 +30,11 @@ mod level;
 pub mod neighbourhood;
 mod plan;
 pub mod queue;
+mod repeats;
 
 pub use config::{Config, FillSource, Mode, Position, Stitch, SynthMethod, MAX_CANVAS_PIXELS};
 pub use plan::resolve_levels;
+pub use repeats::RepeatControl;
 
 pub use crate::progress::{Progress, Silent};
 

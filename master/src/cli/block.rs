@@ -301,6 +301,10 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         ("--colour-search", c.colour_search),
         ("--chroma-blur", c.chroma_blur != 0),
         ("--stitch", c.stitch != StitchArg::Hard),
+        ("--repeat-slack", c.repeat_slack.is_some()),
+        ("--repeat-candidates", c.repeat_candidates.is_some()),
+        ("--repeat-percent", c.repeat_percent.is_some()),
+        ("--no-repeat-control", c.no_repeat_control),
         ("--levels-dir", c.levels_dir.is_some()),
         ("--report", c.report.is_some()),
     ];

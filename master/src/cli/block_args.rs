@@ -54,6 +54,24 @@ pub struct Common {
     /// synthesised pixels, up to a minimum-error path; Somol–Haindl).
     #[arg(long, value_enum, default_value_t = StitchArg::Hard)]
     pub stitch: StitchArg,
+    /// Repetition control: of the exact search's near-ties (within
+    /// --repeat-percent of the best match's distance plus this many grey levels
+    /// per known neighbourhood component), copy the block whose sample pixels
+    /// were copied least, so the output repeats the sample less.
+    /// Deterministic, and the same across threads and workers.
+    #[arg(long, value_name = "GREY")]
+    pub repeat_slack: Option<u32>,
+    /// Repetition control: near-tie slack in percent of the best distance;
+    /// `--repeat-percent 0 --repeat-slack 0` (or `--no-repeat-control`) turns
+    /// it off.
+    #[arg(long, value_name = "PERCENT")]
+    pub repeat_percent: Option<u32>,
+    /// Turn repetition control off: the exact best match, as in the paper.
+    #[arg(long)]
+    pub no_repeat_control: bool,
+    /// Repetition control: the best matches each block chooses from (2..=64).
+    #[arg(long, value_name = "K")]
+    pub repeat_candidates: Option<usize>,
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
     /// textures whose structure and colour disagree. Runs on this machine.
     #[arg(long)]
@@ -222,8 +240,43 @@ impl TryFrom<&Common> for Config {
                 StitchArg::Hard => block::Stitch::Hard,
                 StitchArg::Path => block::Stitch::Path,
             },
+            repeats: repeats(c, d.repeats)?,
         };
         cfg.validate()?;
         Ok(cfg)
     }
+}
+
+/// The repetition control of `--repeat-slack`, `--repeat-percent`,
+/// `--repeat-candidates` and `--no-repeat-control` over the default.
+fn repeats(
+    c: &Common,
+    default: Option<block::RepeatControl>,
+) -> Result<Option<block::RepeatControl>> {
+    let given =
+        c.repeat_slack.is_some() || c.repeat_percent.is_some() || c.repeat_candidates.is_some();
+    if c.no_repeat_control {
+        ensure!(
+            !given,
+            "--no-repeat-control turns repetition control off; drop --repeat-slack, --repeat-percent and --repeat-candidates"
+        );
+        return Ok(None);
+    }
+    if !given {
+        return Ok(default);
+    }
+    let base = default.unwrap_or_default();
+    let r = block::RepeatControl {
+        slack: c.repeat_slack.unwrap_or(base.slack),
+        percent: c.repeat_percent.unwrap_or(base.percent),
+        candidates: c.repeat_candidates.unwrap_or(base.candidates),
+    };
+    if r.slack == 0 && r.percent == 0 {
+        ensure!(
+            c.repeat_candidates.is_none(),
+            "--repeat-candidates needs repetition control; drop it or give a slack above 0"
+        );
+        return Ok(None);
+    }
+    Ok(Some(r))
 }

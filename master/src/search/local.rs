@@ -124,6 +124,26 @@ impl SearchBackend for LocalSearch {
             .search_topk(space, space.start()..space.end(), queries, &self.params, k)?)
     }
 
+    fn search_near_ties(
+        &mut self,
+        queries: &QueryBatch,
+        k: usize,
+        slack: &[texsyn_engine::Slack],
+    ) -> Result<Vec<Vec<Hit>>> {
+        let space = self
+            .space
+            .as_ref()
+            .ok_or_else(|| anyhow::anyhow!("search before load_level"))?;
+        Ok(self.engine.search_near_ties(
+            space,
+            space.start()..space.end(),
+            queries,
+            &self.params,
+            k,
+            slack,
+        )?)
+    }
+
     fn level_prune(&self) -> Option<PruneStats> {
         Some(self.prune)
     }

@@ -114,6 +114,23 @@ pub trait SearchBackend: Send {
         let _ = (queries, k);
         anyhow::bail!("{} cannot give the k best matches", self.name())
     }
+    /// Repetition control's near-ties: of the `k` best references per query,
+    /// those within `slack[q]` of its best distance. Exact backends answer the
+    /// same lists whichever way they search; the default filters the top-k.
+    fn search_near_ties(
+        &mut self,
+        queries: &QueryBatch,
+        k: usize,
+        slack: &[texsyn_engine::Slack],
+    ) -> Result<Vec<Vec<Hit>>> {
+        let mut lists = self.search_topk(queries, k)?;
+        for (l, s) in lists.iter_mut().zip(slack) {
+            if let Some(best) = l.first().map(|h| h.dist) {
+                l.retain(|h| h.dist <= s.limit(best));
+            }
+        }
+        Ok(lists)
+    }
     /// Releases the level's memory.
     fn end_level(&mut self) {}
     /// Asks for LBG with `probes` instead of exhaustive search from the next

@@ -217,6 +217,26 @@ impl SearchBackend for PlannedSearch {
         self.backend().search_topk(queries, k)
     }
 
+    /// LBG levels are approximate and have no near-ties: their best match only.
+    fn search_near_ties(
+        &mut self,
+        queries: &QueryBatch,
+        k: usize,
+        slack: &[texsyn_engine::Slack],
+    ) -> Result<Vec<Vec<Hit>>> {
+        match self.current {
+            Strategy::Lbg | Strategy::ClusterLbg => Ok(self
+                .backend()
+                .search(queries)?
+                .into_iter()
+                .map(|h| vec![h])
+                .collect()),
+            Strategy::Local | Strategy::Cluster => {
+                self.backend().search_near_ties(queries, k, slack)
+            }
+        }
+    }
+
     fn end_level(&mut self) {
         self.backend().end_level();
     }

@@ -28,7 +28,7 @@ pub use kernel::{distance, Kernel, Params, PruneStats};
 pub use layout::{Geometry, Layout, Metric, Weights};
 pub use lbg::{Codebook, LbgConfig, LbgStats};
 pub use level::{OwnedLevel, Scorer};
-pub use merge::{check_part, merge_answers, merge_best, merge_topk, with_bounds, Hit};
+pub use merge::{check_part, merge_answers, merge_best, merge_topk, with_bounds, Hit, Slack};
 pub use plane::{OwnedPlane, Plane, Sample};
 pub use positions::Positions;
 pub use search::{busy_nanos, Engine};

@@ -14,6 +14,23 @@ pub struct Hit {
     pub dist: u64,
 }
 
+/// How far from a query's best distance a near-tie may be: `absolute` plus
+/// `per_mille` thousandths of the best distance.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Slack {
+    pub absolute: u64,
+    pub per_mille: u32,
+}
+
+impl Slack {
+    /// The largest distance that is a near-tie of `best`.
+    pub fn limit(&self, best: u64) -> u64 {
+        let rel = (u128::from(best) * u128::from(self.per_mille) / 1000).min(u128::from(u64::MAX));
+        best.saturating_add(self.absolute)
+            .saturating_add(rel as u64)
+    }
+}
+
 impl Hit {
     /// The "nothing found yet" hit; loses against every real one.
     pub const NONE: Hit = Hit {

@@ -22,7 +22,7 @@ use rayon::prelude::*;
 use crate::batch::QueryBatch;
 use crate::error::{EngineError, Result};
 use crate::kernel::{distance, Kernel, Params, PruneStats, Scan, Sink};
-use crate::merge::{merge_best, merge_topk, Hit};
+use crate::merge::{merge_best, merge_topk, Hit, Slack};
 use crate::space::VectorSpace;
 use crate::window::Sweep;
 
@@ -444,6 +444,57 @@ impl Engine {
         params: &Params,
         k: usize,
     ) -> Result<Vec<Vec<Hit>>> {
+        let worst = vec![u64::MAX; queries.len()];
+        self.topk_below(space, range, queries, params, k, worst)
+    }
+
+    /// The near-ties of each query: of its `k` best references in `range`,
+    /// those within `slack[q]` of its best distance (up to its limit), sorted by (distance,
+    /// index); exactly what [`Engine::search_topk`] answers less the entries
+    /// farther than that. The search is cut at the coherence candidates' best
+    /// distance plus the slack, so it prunes almost as well as best-1.
+    pub fn search_near_ties(
+        &self,
+        space: &VectorSpace,
+        range: Range<u64>,
+        queries: &QueryBatch,
+        params: &Params,
+        k: usize,
+        slack: &[Slack],
+    ) -> Result<Vec<Vec<Hit>>> {
+        self.check(space, &range, queries)?;
+        if slack.len() != queries.len() {
+            return Err(EngineError::Parameter(format!(
+                "{} slacks for {} queries",
+                slack.len(),
+                queries.len()
+            )));
+        }
+        let start = self.start_from_candidates(space, &range, queries, params);
+        let worst = start
+            .iter()
+            .zip(slack)
+            .map(|(h, s)| s.limit(h.dist).saturating_add(1))
+            .collect();
+        let mut lists = self.topk_below(space, range, queries, params, k, worst)?;
+        for (l, s) in lists.iter_mut().zip(slack) {
+            if let Some(best) = l.first().map(|h| h.dist) {
+                l.retain(|h| h.dist <= s.limit(best));
+            }
+        }
+        Ok(lists)
+    }
+
+    /// The `k` best references per query with a distance below `worst[q]`.
+    fn topk_below(
+        &self,
+        space: &VectorSpace,
+        range: Range<u64>,
+        queries: &QueryBatch,
+        params: &Params,
+        k: usize,
+        worst: Vec<u64>,
+    ) -> Result<Vec<Vec<Hit>>> {
         self.check(space, &range, queries)?;
         if k == 0 {
             return Err(EngineError::Parameter("top-k needs k ≥ 1".into()));
@@ -457,7 +508,7 @@ impl Engine {
                 let mut sink = TopKSink {
                     k,
                     lists: vec![Vec::with_capacity(k + 1); nq],
-                    worst: vec![u64::MAX; nq],
+                    worst: worst.clone(),
                 };
                 self.scan(space, r, queries, params, &mut sink);
                 sink.lists

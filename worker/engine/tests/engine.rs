@@ -5,7 +5,7 @@
 use proptest::prelude::*;
 use texsyn_engine::{
     distance, Engine, Geometry, Hit, Kernel, Layout, Metric, Params, Plane, QueryBatch, Sample,
-    VectorSpace, Weights,
+    Slack, VectorSpace, Weights,
 };
 
 #[derive(Debug, Clone)]
@@ -146,6 +146,44 @@ proptest! {
                 all.sort();
                 let want: Vec<Hit> = all.iter().take(k).map(|&(dist, index)| Hit { index, dist }).collect();
                 prop_assert_eq!(list, &want);
+            }
+        }
+    }
+
+    /// Near-ties: the brute-force top-k less what is farther than the slack
+    /// from the best, whatever coherence candidates cut the search.
+    #[test]
+    fn near_ties_are_the_topk_within_the_slack(
+        c in case(),
+        k in 1usize..8,
+        absolute in 0u64..400,
+        per_mille in 0u32..600,
+        seed in 0u64..1000,
+    ) {
+        let (space, mut batch) = (c.space(), c.batch());
+        let matrix = reference_matrix(&c);
+        let n = space.len();
+        for q in 0..batch.len() {
+            let cands = (0..3).map(|j| (seed + 7 * q as u64 + 13 * j) % n as u64).collect();
+            batch.set_candidates(q, cands);
+        }
+        let slack = vec![Slack { absolute, per_mille }; batch.len()];
+        for kern in Kernel::available() {
+            let e = Engine::new(kern);
+            let near = e
+                .search_near_ties(&space, 0..space.end(), &batch, &c.params, k, &slack)
+                .unwrap();
+            for (q, list) in near.iter().enumerate() {
+                let mut all: Vec<(u64, u64)> = (0..n).map(|i| (matrix[q * n + i], i as u64)).collect();
+                all.sort();
+                let limit = slack[q].limit(all[0].0);
+                let want: Vec<Hit> = all
+                    .iter()
+                    .take(k)
+                    .filter(|&&(d, _)| d <= limit)
+                    .map(|&(dist, index)| Hit { index, dist })
+                    .collect();
+                prop_assert_eq!(list, &want, "kernel {}", kern.name());
             }
         }
     }

@@ -1,0 +1,173 @@
+//! Repetition control (ARCHITECTURE §3.13): among the near-ties of the exact
+//! search, the reference block whose sample pixels were copied least.
+//!
+//! The search stays exact: the backend returns, of each query's `k` best
+//! references sorted by (distance, index), the near-ties, those within `slack`
+//! grey levels per known (weighted) component of the best distance; the same
+//! lists on every thread and worker count. Of those, the block whose B×B
+//! source pixels have the smallest use count wins, then the smaller distance,
+//! then the smaller index. Use counts start from the pixels known
+//! before the search (the placed sample counts as used once) and grow with
+//! every copy, in the batch's copy order, so the choice is deterministic.
+
+use texsyn_engine::Hit;
+
+/// What the control does; `None` in the config turns it off.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct RepeatControl {
+    /// References asked per query (k ≥ 2).
+    pub candidates: usize,
+    /// Near-tie slack in grey levels per known weighted component.
+    pub slack: u32,
+    /// Near-tie slack in percent of the best distance.
+    pub percent: u32,
+}
+
+impl Default for RepeatControl {
+    fn default() -> Self {
+        Self {
+            candidates: 8,
+            slack: 0,
+            percent: 10,
+        }
+    }
+}
+
+impl RepeatControl {
+    pub fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            (2..=64).contains(&self.candidates),
+            "--repeat-candidates {} must be in 2..=64",
+            self.candidates
+        );
+        anyhow::ensure!(
+            self.slack <= 64,
+            "--repeat-slack {} is too large; use 0..=64 grey levels",
+            self.slack
+        );
+        anyhow::ensure!(
+            self.percent <= 1000,
+            "--repeat-percent {} is too large; use 0..=1000",
+            self.percent
+        );
+        anyhow::ensure!(
+            self.slack > 0 || self.percent > 0,
+            "repetition control needs a slack: --repeat-slack or --repeat-percent above 0"
+        );
+        Ok(())
+    }
+}
+
+/// How often each pixel of a level sample has been copied.
+pub(super) struct Usage {
+    width: usize,
+    height: usize,
+    count: Vec<u16>,
+}
+
+impl Usage {
+    pub fn new(width: usize, height: usize) -> Self {
+        Self {
+            width,
+            height,
+            count: vec![0; width * height],
+        }
+    }
+
+    /// One more copy of sample pixel (x, y).
+    #[inline]
+    pub fn add(&mut self, x: usize, y: usize) {
+        if x < self.width && y < self.height {
+            let c = &mut self.count[y * self.width + x];
+            *c = c.saturating_add(1);
+        }
+    }
+
+    /// Copies so far of the B×B block centred at `pos` (pixels outside the
+    /// sample count nothing).
+    pub fn block(&self, pos: [u32; 2], b: usize) -> u64 {
+        let r = (b / 2) as isize;
+        let (cx, cy) = (pos[0] as isize, pos[1] as isize);
+        let mut sum = 0u64;
+        for y in cy - r..=cy + r {
+            if y < 0 || y as usize >= self.height {
+                continue;
+            }
+            let row = &self.count[y as usize * self.width..][..self.width];
+            for x in cx - r..=cx + r {
+                if x >= 0 && (x as usize) < self.width {
+                    sum += u64::from(row[x as usize]);
+                }
+            }
+        }
+        sum
+    }
+}
+
+/// The pick among the near-ties `hits` (sorted by distance, then index): the
+/// least-used, then the nearer, then the lower index. `block_use` gives a
+/// hit's use count.
+pub(super) fn pick(hits: &[Hit], mut block_use: impl FnMut(&Hit) -> u64) -> Option<Hit> {
+    hits.iter()
+        .map(|h| (block_use(h), h.dist, h.index))
+        .min()
+        .map(|(_, dist, index)| Hit { index, dist })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn hit(index: u64, dist: u64) -> Hit {
+        Hit { index, dist }
+    }
+
+    #[test]
+    fn the_least_used_near_tie_wins_then_the_nearer() {
+        let hits = [hit(5, 100), hit(2, 110), hit(9, 130), hit(1, 130)];
+        let used = |h: &Hit| match h.index {
+            5 => 25,
+            2 => 3,
+            _ => 0,
+        };
+        // 9 and 1 are unused and equally near: the lower index.
+        assert_eq!(pick(&hits, used), Some(hit(1, 130)));
+        assert_eq!(pick(&hits[..2], used), Some(hit(2, 110)));
+        assert_eq!(pick(&hits[..1], used), Some(hit(5, 100)));
+        assert_eq!(pick(&[], used), None);
+    }
+
+    #[test]
+    fn usage_counts_the_block_clipped_at_the_sample() {
+        let mut u = Usage::new(6, 4);
+        for y in 0..4 {
+            for x in 0..6 {
+                u.add(x, y);
+            }
+        }
+        u.add(0, 0);
+        u.add(9, 9); // outside: ignored
+        assert_eq!(u.block([2, 2], 3), 9);
+        assert_eq!(u.block([0, 0], 3), 4 + 1);
+        assert_eq!(u.block([5, 3], 5), 9);
+    }
+
+    proptest! {
+        /// No near-tie is used less than the pick, and none used as little is
+        /// nearer.
+        #[test]
+        fn pick_is_the_least_used_then_nearest(
+            mut d in prop::collection::vec(0u64..1000, 1..16),
+            uses in prop::collection::vec(0u64..50, 16),
+        ) {
+            d.sort_unstable();
+            let hits: Vec<Hit> = d.iter().enumerate().map(|(i, &d)| hit(i as u64, d)).collect();
+            let used = |h: &Hit| uses[h.index as usize];
+            let p = pick(&hits, used).unwrap();
+            for h in &hits {
+                prop_assert!(used(h) > used(&p) || (used(h) == used(&p) && h.key() >= p.key()));
+            }
+        }
+    }
+}
