@@ -35,9 +35,9 @@ pub const METHODS: [&str; 9] = [
 /// --locked`), for the block method's comparison.
 pub const EXTRA_METHODS: [&str; 5] = [
     "block-scanline",
+    "block-hard",
     "block-path",
     "block-repeat",
-    "block-path-repeat",
     "embark",
 ];
 
@@ -50,9 +50,9 @@ pub struct QualityArgs {
     pub inputs: Vec<PathBuf>,
     /// Methods to run, of: block, parallel-reduced, parallel-half,
     /// parallel-5, parallel-7, somol, omega, morph, solid; and, only when
-    /// named, block-scanline, block-path, block-repeat (repetition control at
-    /// 25%), block-path-repeat (both) and embark (Embark's texture-synthesis,
-    /// the peer).
+    /// named, block-scanline, block-hard and block-path (the two stitches;
+    /// `synth`'s default is path), block-repeat (repetition control at 25%)
+    /// and embark (Embark's texture-synthesis, the peer).
     #[arg(long, value_delimiter = ',', default_values_t = METHODS.map(String::from))]
     pub methods: Vec<String>,
     /// Skip samples whose larger side exceeds this (0 = none).
@@ -235,15 +235,13 @@ impl Job<'_> {
         let out = self.path("out.png");
         let tile = (w.min(h) / 2) & !1;
         match method {
-            "block" | "block-scanline" | "block-path" | "block-repeat" | "block-path-repeat" => {
+            "block" | "block-scanline" | "block-hard" | "block-path" | "block-repeat" => {
                 let mut args = vec!["synth", &sample, "-o", &out, "--size", &size];
                 match method {
                     "block-scanline" => args.extend(["--method", "scanline"]),
+                    "block-hard" => args.extend(["--stitch", "hard"]),
                     "block-path" => args.extend(["--stitch", "path"]),
                     "block-repeat" => args.extend(["--repeat-percent", "25"]),
-                    "block-path-repeat" => {
-                        args.extend(["--stitch", "path", "--repeat-percent", "25"])
-                    }
                     _ => {}
                 }
                 let (t, m) = self.texsyn(&args)?;

@@ -1325,3 +1325,52 @@ fn compare_refuses_images_over_its_limit() {
     assert!(err.contains("4097x4097") && err.contains("crop"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// The stitch defaults: `synth` stitches along paths (as `--stitch path`, and
+/// not as `--stitch hard`); `extend` keeps the square edge; repetition
+/// control is off unless asked for, and its flags are checked.
+#[test]
+fn synth_defaults_to_path_stitching_and_extend_to_hard() {
+    let dir = tempfile::tempdir().unwrap();
+    let sample = assets().join("brick_color_96.png");
+    let run = |cmd: &str, name: &str, extra: &[&str]| -> Vec<u8> {
+        let out = dir.path().join(format!("{name}.png"));
+        let args = [
+            &[cmd, s(&sample), "-o", s(&out), "--size", "144x128", "-q"][..],
+            extra,
+        ]
+        .concat();
+        common::ok(&args);
+        std::fs::read(&out).unwrap()
+    };
+    let synth = run("synth", "synth", &[]);
+    assert!(synth == run("synth", "path", &["--stitch", "path"]));
+    assert!(synth != run("synth", "hard", &["--stitch", "hard"]));
+    assert!(synth == run("synth", "off", &["--no-repeat-control"]));
+    assert!(synth == run("synth", "zero", &["--repeat-percent", "0"]));
+    assert!(synth != run("synth", "repeat", &["--repeat-percent", "25"]));
+    let extend = run("extend", "extend", &[]);
+    assert!(extend == run("extend", "ehard", &["--stitch", "hard"]));
+    let out = dir.path().join("bad.png");
+    for (flags, words) in [
+        (
+            &["--no-repeat-control", "--repeat-percent", "5"][..],
+            &["--no-repeat-control", "--repeat-percent"][..],
+        ),
+        (
+            &["--repeat-candidates", "1"],
+            &["--repeat-candidates", "2..=64"],
+        ),
+        (
+            &["--repeat-percent", "0", "--repeat-candidates", "4"],
+            &["--repeat-candidates", "slack"],
+        ),
+    ] {
+        let args = [
+            &["synth", s(&sample), "-o", s(&out), "--size", "96x96"][..],
+            flags,
+        ]
+        .concat();
+        fails(&args, &out, words);
+    }
+}

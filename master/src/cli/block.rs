@@ -8,9 +8,9 @@ use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
 
-use super::block_args::{parse_position, ExtendArgs, FillArgs, MethodArg, StitchArg, SynthArgs};
+use super::block_args::{parse_position, ExtendArgs, FillArgs, MethodArg, SynthArgs};
 use super::{parallel, parse_size, progress, Common, ParallelArgs};
-use crate::block::{self, Config, FillSource, Mode, SynthMethod};
+use crate::block::{self, Config, FillSource, Mode, Stitch, SynthMethod};
 use crate::imaging::{self, ColorImage, DeepImage, PixelFormat};
 
 /// Rejects outputs of `common` that name the same file, an input of
@@ -233,6 +233,10 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
     }
     ensure!(a.jitter.is_none(), "--jitter belongs to --method parallel");
     let mut cfg = Config::try_from(&a.common)?;
+    if a.common.stitch.is_none() {
+        // `synth`'s own default (ARCHITECTURE §3.12).
+        cfg.stitch = Stitch::Path;
+    }
     let (width, height) = parse_size(&a.size)?;
     let mut level_files = Vec::new();
     for spec in &a.level_samples {
@@ -300,7 +304,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         ("--tileable", c.tileable),
         ("--colour-search", c.colour_search),
         ("--chroma-blur", c.chroma_blur != 0),
-        ("--stitch", c.stitch != StitchArg::Hard),
+        ("--stitch", c.stitch.is_some()),
         ("--repeat-slack", c.repeat_slack.is_some()),
         ("--repeat-candidates", c.repeat_candidates.is_some()),
         ("--repeat-percent", c.repeat_percent.is_some()),

@@ -51,9 +51,11 @@ pub struct Common {
     pub chroma_blur: usize,
     /// How a copied block meets the pixels around it: `hard` (the block's square
     /// edge) or `path` (its reference continues into a band of up to 3
-    /// synthesised pixels, up to a minimum-error path; Somol–Haindl).
-    #[arg(long, value_enum, default_value_t = StitchArg::Hard)]
-    pub stitch: StitchArg,
+    /// synthesised pixels, up to a minimum-error path; Somol–Haindl). Default:
+    /// path for `synth`, which measures better against the peer; hard for
+    /// `fill` and `extend`.
+    #[arg(long, value_enum)]
+    pub stitch: Option<StitchArg>,
     /// Repetition control: of the exact search's near-ties (within
     /// --repeat-percent of the best match's distance plus this many grey levels
     /// per known neighbourhood component), copy the block whose sample pixels
@@ -237,8 +239,9 @@ impl TryFrom<&Common> for Config {
             level_samples: Vec::new(),
             colour_search: c.colour_search,
             stitch: match c.stitch {
-                StitchArg::Hard => block::Stitch::Hard,
-                StitchArg::Path => block::Stitch::Path,
+                None => d.stitch,
+                Some(StitchArg::Hard) => block::Stitch::Hard,
+                Some(StitchArg::Path) => block::Stitch::Path,
             },
             repeats: repeats(c, d.repeats)?,
         };
