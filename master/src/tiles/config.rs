@@ -308,7 +308,7 @@ mod tests {
         let s = SomolConfig::default().settings(&sample, None).unwrap();
         assert_eq!(
             (s.max_size, s.min_size, s.overlap, s.belt, s.margin),
-            (100, 80, 10, 4, 1)
+            (100, 80, 10, 4, 0)
         );
     }
 }
