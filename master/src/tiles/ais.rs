@@ -350,13 +350,27 @@ fn keep_better_clones(
     }
 }
 
-/// The affinities of antibodies on the evaluation grid.
+/// The affinities of antibodies on the evaluation grid, each divided by
+/// `1 + 4·c` for its `c` pairs of colours whose patches cover half of each
+/// other (the draws avoid them but may fail to where patches must crowd).
 fn affinities(ev: &mut Evaluator, abs: &[Vec<Gene>], lambda: f64) -> Result<Vec<f64>> {
     let at: Vec<Vec<Gene>> = abs
         .iter()
         .map(|a| a.iter().map(|&g| to_sample(g, ev.steps)).collect())
         .collect();
-    sample_affinities(ev, &at, lambda)
+    let side = grid_side(ev);
+    let f = sample_affinities(ev, &at, lambda)?;
+    Ok(abs
+        .iter()
+        .zip(f)
+        .map(|(a, f)| {
+            let clashes = (0..a.len())
+                .flat_map(|i| (i + 1..a.len()).map(move |j| (i, j)))
+                .filter(|&(i, j)| patch_cover(a[i], a[j], side) >= MAX_COVER)
+                .count();
+            f / (1.0 + 4.0 * clashes as f64)
+        })
+        .collect())
 }
 
 /// The affinities of patch sets given in sample pixels.
