@@ -286,12 +286,12 @@ impl Job<'_> {
                 let (t, mem) = self.texsyn(&args)?;
                 let sets = compare::set::set_scores(Path::new(&set))?;
                 let status = Command::new(self.texsyn)
-                    .args(["tiles", "assemble", &set, "--grid", "4x4", "-o", &out])
+                    .args(["tiles", "assemble", &set, "--grid", "8x8", "-o", &out])
                     .stdout(Stdio::null())
                     .status()?;
                 ensure!(status.success(), "texsyn tiles assemble failed ({status})");
                 let img = imaging::load_color(Path::new(&out))?;
-                let (tw, th) = (img.width / 4, img.height / 4);
+                let (tw, th) = (img.width / 8, img.height / 8);
                 let grid = Grid {
                     tile_width: tw,
                     tile_height: th,

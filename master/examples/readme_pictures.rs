@@ -126,18 +126,11 @@ fn main() -> Result<()> {
     if want("tiles") {
         println!("tiles: coffee beans, one tile against eight (the paper's Fig. 10 index)");
         let beans = imaging::load_color(&tex.join("coffee_beans_color_512.png"))?;
-        let settings = texsyn::tiles::TileSetSettings {
-            tiles: 8,
-            min_size: 102,
-            max_size: 128,
-            overlap: 12,
-            belt: 12,
-            margin: 2,
-            candidates: 48,
-            refine: 4,
-            path: Default::default(),
-            seed: 1,
-        };
+        let settings = texsyn::tiles::SomolConfig {
+            tile_size: Some(128),
+            ..Default::default()
+        }
+        .settings(&beans, None)?;
         let set = texsyn::tiles::make_tile_set(&beans, None, &settings, &texsyn::progress::Silent)?;
         let one = texsyn::tiles::assemble(&set.tiles, &vec![vec![1; 4]; 4])?;
         let index = [[7, 6, 1, 5], [3, 7, 5, 8], [5, 1, 6, 2], [4, 3, 2, 3]].map(Vec::from);
@@ -149,17 +142,15 @@ fn main() -> Result<()> {
         let marble = imaging::load_color(&tex.join("pink_marble_color_128.png"))?;
         let set = texsyn::tiles::omega::OmegaSet::of_size(38)?;
         let mut evaluator = texsyn::tiles::ais::Evaluator::new(&set, &marble, 80)?;
-        let mut backend = LocalSearch::new(Engine::default());
-        evaluator.load(&mut backend)?;
         let settings = texsyn::tiles::ais::AisSettings::default();
         let found = texsyn::tiles::ais::search(
             &mut evaluator,
-            &mut backend,
             &marble,
             &settings,
             &texsyn::progress::Silent,
         )?;
-        let (omega_tiles, _) = texsyn::tiles::ais::build_tiles(&evaluator, &marble, &found.genes);
+        let (omega_tiles, _) =
+            texsyn::tiles::ais::build_tiles(&mut evaluator, &marble, &found.genes)?;
         let index: Vec<Vec<usize>> = texsyn::tiles::omega::scan_line_tiling(&set, 6, 4, 2)?
             .into_iter()
             .map(|r| r.into_iter().map(|k| k + 1).collect())

@@ -190,6 +190,8 @@ fn settings(tiles: usize) -> TileSetSettings {
         overlap: 10,
         belt: 10,
         margin: 2,
+        pull: 0.0,
+        template_candidates: 1,
         candidates: 24,
         refine: 4,
         path: Default::default(),
@@ -848,4 +850,216 @@ fn a_cut_or_malformed_tileset_json_is_refused_with_the_fix() {
     std::fs::create_dir(&json).unwrap();
     let err = refused(&["tiles", "assemble", s(&set), "-o", s(&out)]);
     assert!(err.contains("texsyn tiles make"), "{err}");
+}
+
+// ---- Issue 38: tile sets that hide their grid --------------------------
+
+/// The share of equal pixels a Somol set may hold between its tiles
+/// (ARCHITECTURE §7): the template's ring and little more.
+const MAX_TILE_OVERLAP: f64 = 0.10;
+/// Joints of an assembled grid against its interior's median step.
+const MAX_JOINT_RATIO: f64 = 1.15;
+
+/// The Somol set of `sample` with the default settings at `side`, or with
+/// `paper` settings: the paper's patch belt (`w_P = w_T`), a 2-pixel margin,
+/// no pull and the single best template by border error.
+fn somol_set(sample: &ColorImage, side: usize, paper: bool) -> tiles::TileSet {
+    let mut s = tiles::SomolConfig {
+        tile_size: Some(side),
+        ..Default::default()
+    }
+    .settings(sample, None)
+    .unwrap();
+    if paper {
+        s.belt = s.overlap;
+        s.margin = 2;
+        s.pull = 0.0;
+        s.template_candidates = 1;
+    }
+    tiles::make_tile_set(sample, None, &s, &Silent).unwrap()
+}
+
+/// Whether a tile set's tiles share few enough pixels.
+fn overlap_within_bound(set: &[ColorImage]) -> (bool, f64) {
+    let o = compare::tile_overlap(set).unwrap();
+    (o <= MAX_TILE_OVERLAP, o)
+}
+
+/// Whether a grid of `tw`×`th` tiles (wrapping) hides its joints.
+fn joints_within_bound(grid: &ColorImage, tw: usize, th: usize) -> (bool, f64) {
+    let g = compare::Grid {
+        tile_width: tw,
+        tile_height: th,
+        wrap: true,
+    };
+    let r = compare::grid_seam(grid, g).ratio;
+    (r <= MAX_JOINT_RATIO, r)
+}
+
+#[test]
+fn derived_tiles_share_little_more_than_the_template_s_ring_and_the_paper_s_band_fails() {
+    let sample = crop(&texture("gravel_gray_500.png"), 0, 0, 160, 160);
+    let set = somol_set(&sample, 80, false);
+    let (ok_now, o) = overlap_within_bound(&set.tiles);
+    assert!(ok_now, "tile_overlap {o}");
+    // The planted defect: the paper's belt with a 2-pixel margin leaves a
+    // wide band of the template in every tile.
+    let band = somol_set(&sample, 80, true);
+    let (ok_band, ob) = overlap_within_bound(&band.tiles);
+    assert!(!ok_band, "the banded set should fail: tile_overlap {ob}");
+    // The tiles' edges are still the template's, so they all connect.
+    let (w, h) = (set.tiles[0].width, set.tiles[0].height);
+    for t in &set.tiles[1..] {
+        for x in 0..w {
+            assert_eq!(t.get(x, 0), set.tiles[0].get(x, 0));
+            assert_eq!(t.get(x, h - 1), set.tiles[0].get(x, h - 1));
+        }
+        for y in 0..h {
+            assert_eq!(t.get(0, y), set.tiles[0].get(0, y));
+            assert_eq!(t.get(w - 1, y), set.tiles[0].get(w - 1, y));
+        }
+    }
+}
+
+#[test]
+fn a_somol_grid_hides_its_joints_and_raw_crops_fail_the_same_bound() {
+    let sample = crop(&texture("pink_marble_color_128.png"), 0, 0, 128, 128);
+    let set = somol_set(&sample, 64, false);
+    let (w, h) = (set.tiles[0].width, set.tiles[0].height);
+    let index = tiles::random_index(set.tiles.len(), 8, 8, 3);
+    let grid = tiles::assemble(&set.tiles, &index).unwrap();
+    let (ok_now, r) = joints_within_bound(&grid, w, h);
+    assert!(ok_now, "joint ratio {r}");
+    // The planted defect: tiles cut straight from the sample.
+    let raw: Vec<ColorImage> = [(0, 0), (60, 7), (13, 70), (64, 64)]
+        .iter()
+        .map(|&(x, y)| crop(&sample, x, y, w, h))
+        .collect();
+    let bad = tiles::assemble(&raw, &tiles::random_index(4, 8, 8, 3)).unwrap();
+    let (ok_bad, rb) = joints_within_bound(&bad, w, h);
+    assert!(!ok_bad, "raw crops should fail: joint ratio {rb}");
+}
+
+/// `E` of each patch set at full resolution.
+fn full_energies(
+    sample: &ColorImage,
+    set: &tiles::omega::OmegaSet,
+    t: usize,
+    sets: &[Vec<(u32, u32)>],
+) -> Vec<f64> {
+    let mut ev = tiles::ais::Evaluator::at_level(set, sample, t, 0).unwrap();
+    ev.errors(sets)
+        .unwrap()
+        .iter()
+        .map(|d| tiles::ais::energy(d, 0.8))
+        .collect()
+}
+
+/// Whether a patch set's full-resolution error is below the best of the
+/// random sets (the paper's semi-random baseline, Table 2).
+fn beats_semi_random(e: f64, random: &[f64]) -> (bool, f64) {
+    let semi = random.iter().copied().fold(f64::INFINITY, f64::min);
+    (e < semi, semi)
+}
+
+#[test]
+fn the_immune_search_beats_the_best_of_a_hundred_random_sets_at_full_resolution() {
+    let set = tiles::omega::OmegaSet::of_size(8).unwrap();
+    for (name, x, y) in [
+        ("pink_marble_color_128.png", 20, 30),
+        ("leaves_green_color_161.png", 40, 10),
+    ] {
+        let sample = crop(&texture(name), x, y, 56, 56);
+        let t = 28;
+        let mut ev = tiles::ais::Evaluator::new(&set, &sample, t).unwrap();
+        assert_eq!(ev.steps, 0, "a small sample is searched at full resolution");
+        let s = tiles::ais::AisSettings::default();
+        let found = tiles::ais::search(&mut ev, &sample, &s, &Silent).unwrap();
+        let random = tiles::ais::random_sets(&ev, &sample, 100, 9);
+        let re = full_energies(&sample, &set, t, &random);
+        let e = full_energies(&sample, &set, t, std::slice::from_ref(&found.genes))[0];
+        let (ok_ais, semi) = beats_semi_random(e, &re);
+        assert!(ok_ais, "{name}: AIS E {e} vs semi-random {semi}");
+        // The planted defect: a "search" that keeps its first random set.
+        let (ok_first, _) = beats_semi_random(re[0], &re[1..]);
+        assert!(
+            !ok_first,
+            "{name}: a random set should not beat the other 99"
+        );
+    }
+}
+
+/// Colours whose patches cover half of another colour's, and tiles equal
+/// pixel for pixel to an earlier one.
+fn shared_patches_and_tiles(
+    patches: &[(u32, u32)],
+    t: usize,
+    tiles: &[ColorImage],
+) -> (usize, usize) {
+    let shared = (0..patches.len())
+        .filter(|&i| (0..i).any(|j| tiles::ais::patch_cover(patches[i], patches[j], t) >= 0.5))
+        .count();
+    let equal = (0..tiles.len())
+        .filter(|&i| (0..i).any(|j| tiles[i].rgb == tiles[j].rgb))
+        .count();
+    (shared, equal)
+}
+
+/// Per tile and side, the pixels of its border that differ from the
+/// corner patches they continue: tile column 0 is column `T/2` of the
+/// patch of its left corners, column `T − 1` is column `T/2 − 1` of the patch
+/// of its right corners (and rows alike), so any two tiles whose corners
+/// match agree with the sample along their whole shared edge.
+fn edge_disagreements(
+    sample: &ColorImage,
+    set: &tiles::omega::OmegaSet,
+    patches: &[(u32, u32)],
+    tiles: &[ColorImage],
+) -> usize {
+    let t = tiles[0].width;
+    let k = t / 2;
+    let mut bad = 0;
+    for (tile, corners) in tiles.iter().zip(&set.tiles) {
+        let patch = |c: usize| patches[usize::from(corners[c])];
+        // (tile x, tile y) -> the patch pixel the intermediate tile shows.
+        let want = |x: usize, y: usize| {
+            let (right, sx) = if x < k { (0, x + k) } else { (1, x - k) };
+            let (bottom, sy) = if y < k { (0, y + k) } else { (1, y - k) };
+            let (gx, gy) = patch(2 * bottom + right);
+            sample.get(gx as usize + sx, gy as usize + sy)
+        };
+        for i in 0..t {
+            for (x, y) in [(i, 0), (i, t - 1), (0, i), (t - 1, i)] {
+                bad += usize::from(tile.get(x, y) != want(x, y));
+            }
+        }
+    }
+    bad
+}
+
+#[test]
+fn omega_tiles_are_distinct_and_agree_with_their_neighbours_along_whole_edges() {
+    let sample = crop(&texture("pink_marble_color_128.png"), 0, 0, 64, 64);
+    let set = tiles::omega::OmegaSet::of_size(17).unwrap();
+    let t = 32;
+    let mut ev = tiles::ais::Evaluator::new(&set, &sample, t).unwrap();
+    let s = tiles::ais::AisSettings {
+        generations: 8,
+        ..Default::default()
+    };
+    let found = tiles::ais::search(&mut ev, &sample, &s, &Silent).unwrap();
+    let (images, _) = tiles::ais::build_tiles(&mut ev, &sample, &found.genes).unwrap();
+    assert_eq!(shared_patches_and_tiles(&found.genes, t, &images), (0, 0));
+    assert_eq!(edge_disagreements(&sample, &set, &found.genes, &images), 0);
+    // Planted defects: two colours on one patch make equal tiles; one
+    // border pixel changed breaks the agreement along that edge.
+    let mut one = found.genes.clone();
+    one[4] = one[3];
+    let (same, _) = tiles::ais::build_tiles(&mut ev, &sample, &one).unwrap();
+    let (shared, equal) = shared_patches_and_tiles(&one, t, &same);
+    assert!(shared == 1 && equal > 0, "{shared} {equal}");
+    let mut touched = images.clone();
+    let p = touched[5].get(0, 9);
+    touched[5].set(0, 9, [p[0] ^ 0x40, p[1], p[2]]);
+    assert_eq!(edge_disagreements(&sample, &set, &found.genes, &touched), 1);
 }

@@ -53,10 +53,22 @@ pub struct MakeArgs {
     /// the sample's smaller side, at most 256).
     #[arg(long)]
     pub tile_size: Option<usize>,
-    /// Overlap of the template's stitches and belt of the patches (default:
-    /// a tenth of the tile, as in the paper).
+    /// Overlap of the template's stitches (default: a tenth of the tile, as
+    /// in the paper).
     #[arg(long)]
     pub overlap: Option<usize>,
+    /// Belt of the patch stitches (default: a twenty-fourth of the tile, at
+    /// least 3; the paper's is the overlap).
+    #[arg(long)]
+    pub belt: Option<usize>,
+    /// Pull of the patch paths towards the tile's edge, in RGB distance per
+    /// pixel of the belt (0: the paper's search).
+    #[arg(long, default_value_t = SomolConfig::default().pull)]
+    pub pull: f32,
+    /// Template placements stitched and compared, at the overlap and twice it
+    /// (1: the paper's single best by border error).
+    #[arg(long, default_value_t = SomolConfig::default().template_candidates)]
+    pub template_candidates: usize,
     /// Use this seamless tile as the template instead of searching one (e.g.
     /// the output of `texsyn extend --tileable`).
     #[arg(long)]
@@ -118,6 +130,9 @@ impl TryFrom<&MakeArgs> for MakeConfig {
             tiles: a.tiles,
             tile_size: a.tile_size,
             overlap: a.overlap,
+            belt: a.belt,
+            pull: a.pull,
+            template_candidates: a.template_candidates,
             candidates: a.candidates,
             path: a.path,
             seed: a.seed,
@@ -188,11 +203,8 @@ fn make(a: &MakeArgs) -> Result<()> {
             let mut evaluator = tiles::omega_evaluator(c, &set, &sample)?;
             let out = OutputDir::create(&a.output, &inputs)?;
             let made = pool.install(|| {
-                let pixels = sample.width * sample.height;
-                let mut opened = a.run.open(c.seed, pixels)?;
                 let sample = (&sample, name.as_str());
-                let b = &mut opened.search;
-                tiles::make_omega(c, &mut evaluator, b, sample, out.path(), &bars, started)
+                tiles::make_omega(c, &mut evaluator, sample, out.path(), &bars, started)
             })?;
             out.commit()?;
             made

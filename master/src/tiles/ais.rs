@@ -14,10 +14,9 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 pub use super::build::{build_tiles, OmegaTile};
-pub use super::evaluate::{affinity, energy, intermediate_tile, Evaluator};
+pub use super::evaluate::{affinity, brute_force_error, energy, intermediate_tile, Evaluator};
 use crate::imaging::ColorImage;
 use crate::progress::Progress;
-use crate::search::SearchBackend;
 
 /// The immune search's parameters; the defaults are the paper's (§4.4).
 #[derive(Clone, Copy, Debug, Serialize, Deserialize)]
@@ -88,6 +87,13 @@ pub struct Generation {
 pub struct AisResult {
     pub genes: Vec<Gene>,
     pub best_f: f64,
+    /// The best affinity the immune search itself reached, before the
+    /// closing descent ([`polish`]).
+    #[serde(default)]
+    pub search_f: f64,
+    /// Moves the descent kept.
+    #[serde(default)]
+    pub polish_moves: usize,
     pub history: Vec<Generation>,
     pub searches: u64,
     pub seconds: f64,
@@ -112,6 +118,68 @@ fn to_sample(g: Gene, steps: usize) -> Gene {
 
 fn random_gene(rng: &mut ChaCha8Rng, u: Gene) -> Gene {
     (rng.random_range(0..=u.0), rng.random_range(0..=u.1))
+}
+
+/// The share of a `t`×`t` patch at `a` that the one at `b` covers.
+pub fn patch_cover(a: Gene, b: Gene, t: usize) -> f64 {
+    let d = |p: u32, q: u32| t.saturating_sub(p.abs_diff(q) as usize);
+    (d(a.0, b.0) * d(a.1, b.1)) as f64 / (t * t).max(1) as f64
+}
+
+/// Patches of two colours are distinct when neither covers half of the
+/// other (the measure `texsyn compare SET_DIR` counts as `distinct_patches`).
+pub const MAX_COVER: f64 = 0.5;
+
+/// Whether grid gene `g` for colour `k` keeps clear of the other colours'
+/// patches (`side` is the patch side in grid cells).
+fn clear_of(genes: &[Gene], k: usize, g: Gene, side: usize) -> bool {
+    genes
+        .iter()
+        .enumerate()
+        .all(|(i, &o)| i == k || patch_cover(g, o, side) < MAX_COVER)
+}
+
+/// Tries a new gene `draw` for colour `k` until it keeps clear of the
+/// others (§3: a colour is a patch of its own); after `TRIES` draws the
+/// one covering the least is kept.
+fn clear_gene(
+    rng: &mut ChaCha8Rng,
+    genes: &[Gene],
+    k: usize,
+    side: usize,
+    mut draw: impl FnMut(&mut ChaCha8Rng) -> Gene,
+) -> Gene {
+    const TRIES: usize = 32;
+    let worst = |g: Gene| {
+        genes
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| i != k)
+            .map(|(_, &o)| patch_cover(g, o, side))
+            .fold(0.0, f64::max)
+    };
+    let mut best = (f64::INFINITY, (0, 0));
+    for _ in 0..TRIES {
+        let g = draw(rng);
+        if clear_of(genes, k, g, side) {
+            return g;
+        }
+        let w = worst(g);
+        if w < best.0 {
+            best = (w, g);
+        }
+    }
+    best.1
+}
+
+/// `n` random grid genes whose patches keep clear of each other.
+fn random_antibody(rng: &mut ChaCha8Rng, u: Gene, n: usize, side: usize) -> Vec<Gene> {
+    let mut genes: Vec<Gene> = Vec::with_capacity(n);
+    for k in 0..n {
+        let g = clear_gene(rng, &genes, k, side, |r| random_gene(r, u));
+        genes.push(g);
+    }
+    genes
 }
 
 /// `n` genes, one from each of `n` equal cells of the valid region, shuffled
@@ -163,13 +231,25 @@ fn bga(rng: &mut ChaCha8Rng, g: u32, u: u32) -> u32 {
 
 /// The first population (§4.2.1): half at random, half spread over the
 /// valid region.
-fn first_population(rng: &mut ChaCha8Rng, u: Gene, n: usize, np: usize) -> Vec<Vec<Gene>> {
+fn first_population(
+    rng: &mut ChaCha8Rng,
+    u: Gene,
+    n: usize,
+    np: usize,
+    side: usize,
+) -> Vec<Vec<Gene>> {
     (0..np)
         .map(|i| {
             if i < np / 2 {
-                (0..n).map(|_| random_gene(rng, u)).collect()
+                random_antibody(rng, u, n, side)
             } else {
-                spread_antibody(rng, u, n)
+                let mut genes = spread_antibody(rng, u, n);
+                for k in 0..n {
+                    if !clear_of(&genes, k, genes[k], side) {
+                        genes[k] = clear_gene(rng, &genes, k, side, |r| random_gene(r, u));
+                    }
+                }
+                genes
             }
         })
         .collect()
@@ -204,7 +284,7 @@ fn clones(
     population: &[Vec<Gene>],
     f: &[f64],
     (h, nm): (f64, usize),
-    u: Gene,
+    (u, side): (Gene, usize),
     s: &AisSettings,
 ) -> Vec<(usize, Vec<Gene>)> {
     let (np, n) = (population.len(), population[0].len());
@@ -230,8 +310,16 @@ fn clones(
         for _ in 0..count {
             let mut c = parent.clone();
             if rng.random_bool(p.clamp(0.0, 1.0)) {
+                // A mutation that would put two colours on one patch is
+                // drawn again (and dropped if it keeps doing so).
                 let k = rng.random_range(0..n);
-                c[k] = (bga(rng, c[k].0, u.0), bga(rng, c[k].1, u.1));
+                for _ in 0..8 {
+                    let g = (bga(rng, c[k].0, u.0), bga(rng, c[k].1, u.1));
+                    if clear_of(&c, k, g, side) {
+                        c[k] = g;
+                        break;
+                    }
+                }
             }
             clones.push((i, c));
         }
@@ -262,29 +350,47 @@ fn keep_better_clones(
     }
 }
 
-/// The affinities of antibodies on the evaluation grid.
-fn affinities(
-    ev: &mut Evaluator,
-    backend: &mut dyn SearchBackend,
-    abs: &[Vec<Gene>],
-    lambda: f64,
-) -> Result<Vec<f64>> {
+/// The affinities of antibodies on the evaluation grid, each divided by
+/// `1 + 4·c` for its `c` pairs of colours whose patches cover half of each
+/// other (the draws avoid them but may fail to where patches must crowd).
+fn affinities(ev: &mut Evaluator, abs: &[Vec<Gene>], lambda: f64) -> Result<Vec<f64>> {
     let at: Vec<Vec<Gene>> = abs
         .iter()
         .map(|a| a.iter().map(|&g| to_sample(g, ev.steps)).collect())
         .collect();
+    let side = grid_side(ev);
+    let f = sample_affinities(ev, &at, lambda)?;
+    Ok(abs
+        .iter()
+        .zip(f)
+        .map(|(a, f)| {
+            let clashes = (0..a.len())
+                .flat_map(|i| (i + 1..a.len()).map(move |j| (i, j)))
+                .filter(|&(i, j)| patch_cover(a[i], a[j], side) >= MAX_COVER)
+                .count();
+            f / (1.0 + 4.0 * clashes as f64)
+        })
+        .collect())
+}
+
+/// The affinities of patch sets given in sample pixels.
+pub fn sample_affinities(ev: &mut Evaluator, sets: &[Vec<Gene>], lambda: f64) -> Result<Vec<f64>> {
     Ok(ev
-        .errors(backend, &at)?
+        .errors(sets)?
         .iter()
         .map(|d| affinity(d, lambda))
         .collect())
+}
+
+/// The patch side in grid cells (for the distinctness of patches).
+fn grid_side(ev: &Evaluator) -> usize {
+    (ev.tile >> ev.steps).max(1)
 }
 
 /// The immune search (§4.2) for the `set.colours` patch positions; reports
 /// each generation to `progress`.
 pub fn search(
     evaluator: &mut Evaluator,
-    backend: &mut dyn SearchBackend,
     sample: &ColorImage,
     s: &AisSettings,
     progress: &dyn Progress,
@@ -296,9 +402,10 @@ pub fn search(
     let diagonal = (f64::from(u.0).powi(2) + f64::from(u.1).powi(2))
         .sqrt()
         .max(1.0);
+    let side = grid_side(evaluator);
     let mut rng = ChaCha8Rng::seed_from_u64(s.seed);
-    let mut population = first_population(&mut rng, u, n, np);
-    let mut f = affinities(evaluator, backend, &population, s.lambda)?;
+    let mut population = first_population(&mut rng, u, n, np, side);
+    let mut f = affinities(evaluator, &population, s.lambda)?;
     let mut history = Vec::new();
     let (mut best_f, mut stale) = (f64::MIN, 0);
     progress.start("immune search", s.generations.max(1) as u64, "generations");
@@ -307,18 +414,18 @@ pub fn search(
         sort_by_affinity(&mut population, &mut f);
         let h = diversity(&population, diagonal);
         let nm = ((np as f64 * (s.memory_min + h).min(s.memory_max)).floor() as usize).min(np);
-        let clones = clones(&mut rng, &population, &f, (h, nm), u, s);
+        let clones = clones(&mut rng, &population, &f, (h, nm), (u, side), s);
         let genes: Vec<Vec<Gene>> = clones.iter().map(|(_, c)| c.clone()).collect();
-        let cf = affinities(evaluator, backend, &genes, s.lambda)?;
+        let cf = affinities(evaluator, &genes, s.lambda)?;
         keep_better_clones(&mut population, &mut f, &clones, &cf);
         // §4.2.6: the N_d worst die and are replaced by random antibodies.
         sort_by_affinity(&mut population, &mut f);
         let generation_best = f[0];
         let deaths = s.deaths.min(np - 1);
         let newcomers: Vec<Vec<Gene>> = (0..deaths)
-            .map(|_| (0..n).map(|_| random_gene(&mut rng, u)).collect())
+            .map(|_| random_antibody(&mut rng, u, n, side))
             .collect();
-        let nf = affinities(evaluator, backend, &newcomers, s.lambda)?;
+        let nf = affinities(evaluator, &newcomers, s.lambda)?;
         for (k, (g, v)) in newcomers.into_iter().zip(nf).enumerate() {
             population[np - deaths + k] = g;
             f[np - deaths + k] = v;
@@ -349,40 +456,94 @@ pub fn search(
     let best = (0..np)
         .max_by(|&a, &b| f[a].total_cmp(&f[b]).then(b.cmp(&a)))
         .unwrap_or(0);
+    let (genes, best_f, polish_moves) = polish(
+        evaluator,
+        population[best].clone(),
+        f[best],
+        (u, side),
+        s.lambda,
+    )?;
     Ok(AisResult {
-        genes: population[best]
+        genes: genes
             .iter()
             .map(|&g| to_sample(g, evaluator.steps))
             .collect(),
-        best_f: f[best],
+        best_f,
+        search_f: f[best],
+        polish_moves,
         history,
         searches: evaluator.searches,
         seconds: t0.elapsed().as_secs_f64(),
     })
 }
-/// The affinities of `count` random antibodies (the paper's "random" and
-/// "semi-random" baselines are their mean and their best).
-pub fn random_affinities(
-    evaluator: &mut Evaluator,
-    backend: &mut dyn SearchBackend,
-    sample: &ColorImage,
-    count: usize,
+/// A closing descent on the best antibody (beyond the paper, which stops at
+/// the immune search): each gene in turn tries steps of 16, 8, 4, 2 and 1
+/// grid cells along each axis and keeps any that raises the affinity and
+/// keeps the patches clear of each other, until a round keeps none (at most
+/// [`POLISH_ROUNDS`]). Returns the genes, their affinity and the moves kept.
+fn polish(
+    ev: &mut Evaluator,
+    mut genes: Vec<Gene>,
+    mut f: f64,
+    (u, side): (Gene, usize),
     lambda: f64,
-    seed: u64,
-) -> Result<Vec<f64>> {
-    let u = grid_upper(sample, evaluator);
-    let n = evaluator.set.colours;
+) -> Result<(Vec<Gene>, f64, usize)> {
+    let mut kept = 0;
+    for _ in 0..POLISH_ROUNDS {
+        let before = kept;
+        for k in 0..genes.len() {
+            for step in [16i64, 8, 4, 2, 1] {
+                let moves: Vec<Vec<Gene>> = [(step, 0), (-step, 0), (0, step), (0, -step)]
+                    .iter()
+                    .filter_map(|&(dx, dy)| {
+                        let (x, y) = (i64::from(genes[k].0) + dx, i64::from(genes[k].1) + dy);
+                        let inside =
+                            (0..=i64::from(u.0)).contains(&x) && (0..=i64::from(u.1)).contains(&y);
+                        let g = (x as u32, y as u32);
+                        (inside && clear_of(&genes, k, g, side)).then(|| {
+                            let mut c = genes.clone();
+                            c[k] = g;
+                            c
+                        })
+                    })
+                    .collect();
+                let mf = affinities(ev, &moves, lambda)?;
+                if let Some((i, &v)) = mf
+                    .iter()
+                    .enumerate()
+                    .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))
+                {
+                    if v > f * (1.0 + 1e-12) {
+                        f = v;
+                        genes = moves[i].clone();
+                        kept += 1;
+                    }
+                }
+            }
+        }
+        if kept == before {
+            break;
+        }
+    }
+    Ok((genes, f, kept))
+}
+
+/// Rounds of the closing descent at most.
+const POLISH_ROUNDS: usize = 4;
+
+/// `count` random patch sets in sample pixels, each colour's patch clear of
+/// the others' as in the search (the paper's "random" and "semi-random"
+/// baselines are their mean affinity and their best, Table 2).
+pub fn random_sets(ev: &Evaluator, sample: &ColorImage, count: usize, seed: u64) -> Vec<Vec<Gene>> {
+    let u = grid_upper(sample, ev);
+    let (n, side) = (ev.set.colours, grid_side(ev));
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let abs: Vec<Vec<Gene>> = (0..count)
+    (0..count)
         .map(|_| {
-            (0..n)
-                .map(|_| to_sample(random_gene(&mut rng, u), evaluator.steps))
+            random_antibody(&mut rng, u, n, side)
+                .into_iter()
+                .map(|g| to_sample(g, ev.steps))
                 .collect()
         })
-        .collect();
-    Ok(evaluator
-        .errors(backend, &abs)?
-        .iter()
-        .map(|d| affinity(d, lambda))
-        .collect())
+        .collect()
 }

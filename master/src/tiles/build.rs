@@ -29,19 +29,23 @@ pub struct OmegaTile {
 /// error), the graph-cut merge and Poisson smoothing of the quarter seams and
 /// the cut.
 pub fn build_tiles(
-    evaluator: &Evaluator,
+    evaluator: &mut Evaluator,
     sample: &ColorImage,
     genes: &[Gene],
-) -> (Vec<ColorImage>, Vec<OmegaTile>) {
+) -> anyhow::Result<(Vec<ColorImage>, Vec<OmegaTile>)> {
     let t = evaluator.tile;
     let u = upper(sample, t);
     let reach = 1i64 << evaluator.steps;
-    (0..evaluator.set.tiles.len())
+    let matches = (0..evaluator.set.tiles.len())
+        .map(|j| evaluator.coarse_match(genes, j))
+        .collect::<anyhow::Result<Vec<Gene>>>()?;
+    let evaluator = &*evaluator;
+    Ok((0..evaluator.set.tiles.len())
         .into_par_iter()
         .map(|j| {
             let corners = evaluator.set.tiles[j].map(|c| genes[usize::from(c)]);
             let inter = intermediate_tile(sample, t, corners);
-            let (cx, cy) = evaluator.coarse_match(genes, j);
+            let (cx, cy) = matches[j];
             let mut best = (f64::INFINITY, (cx.min(u.0), cy.min(u.1)));
             for dy in -reach..=reach {
                 for dx in -reach..=reach {
@@ -79,7 +83,7 @@ pub fn build_tiles(
                 },
             )
         })
-        .unzip()
+        .unzip())
 }
 
 fn mean_squared(a: &ColorImage, b: &ColorImage) -> f64 {

@@ -27,6 +27,23 @@ pub const PATIENCE: RangeInclusive<usize> = 0..=10_000;
 pub const BASELINE: RangeInclusive<usize> = 0..=10_000;
 /// Overlap and belt width.
 pub const OVERLAP: RangeInclusive<usize> = 1..=1 << 14;
+/// Template placements stitched and compared.
+pub const TEMPLATES: RangeInclusive<usize> = 1..=64;
+/// Largest pull of the patch paths, per pixel of the belt.
+pub const PULL_MAX: f32 = 1000.0;
+/// Pull of the patch paths towards the tile's edge by default.
+pub const DEFAULT_PULL: f32 = 8.0;
+/// Border strip of every derived tile that stays the template's: one pixel,
+/// so both sides of every joint are the template's own continuation.
+pub const MARGIN: usize = 0;
+
+/// The patch belt of a `size`-pixel tile by default: a twenty-fourth of the
+/// tile, at least 3 pixels. Narrower than the paper's `w_P = w_T` (a tenth),
+/// so the template's band is thin; the path still has room to bend.
+pub fn default_belt(size: usize) -> usize {
+    (size / 24).max(3)
+}
+
 /// Tile side.
 pub const TILE_SIZE: RangeInclusive<usize> = 4..=1 << 14;
 
@@ -42,15 +59,23 @@ pub fn check_range(flag: &str, value: usize, range: &RangeInclusive<usize>) -> R
 }
 
 /// A Somol–Haindl tile set to make (§3).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SomolConfig {
     /// Number of tiles, the template included.
     pub tiles: usize,
     /// Greatest template side S (searched in [0.8·S, S]); default half the
     /// sample's smaller side, at most 256.
     pub tile_size: Option<usize>,
-    /// Template overlap and patch belt; default a tenth of the tile (§3.1).
+    /// Template overlap `w_T`; default a tenth of the tile (§4).
     pub overlap: Option<usize>,
+    /// Patch belt `w_P`; default [`default_belt`] (the paper's is `w_T`).
+    pub belt: Option<usize>,
+    /// Pull of the patch paths towards the tile's edge (0 = the paper's
+    /// search).
+    pub pull: f32,
+    /// Template placements stitched and compared (1 = the paper's single
+    /// best by border error).
+    pub template_candidates: usize,
     pub candidates: usize,
     pub path: PathSearch,
     pub seed: u64,
@@ -62,6 +87,9 @@ impl Default for SomolConfig {
             tiles: 8,
             tile_size: None,
             overlap: None,
+            belt: None,
+            pull: DEFAULT_PULL,
+            template_candidates: 3,
             candidates: 48,
             path: PathSearch::Oscillating,
             seed: 1,
@@ -77,6 +105,19 @@ impl SomolConfig {
         if let Some(o) = self.overlap {
             check_range("--overlap", o, &OVERLAP)?;
         }
+        if let Some(b) = self.belt {
+            check_range("--belt", b, &OVERLAP)?;
+        }
+        check_range(
+            "--template-candidates",
+            self.template_candidates,
+            &TEMPLATES,
+        )?;
+        ensure!(
+            self.pull.is_finite() && (0.0..=PULL_MAX).contains(&self.pull),
+            "--pull {} is out of range: give 0..={PULL_MAX}",
+            self.pull
+        );
         if let Some(t) = self.tile_size {
             check_range("--tile-size", t, &TILE_SIZE)?;
         }
@@ -102,6 +143,11 @@ impl SomolConfig {
             2 * overlap < size,
             "--overlap {overlap} must be under half the {size}-pixel tile: give a smaller --overlap or a larger --tile-size"
         );
+        let belt = self.belt.unwrap_or(default_belt(size));
+        ensure!(
+            2 * (belt + MARGIN) < size,
+            "--belt {belt} and the {MARGIN}-pixel margin must stay under half the {size}-pixel tile: give a smaller --belt or a larger --tile-size"
+        );
         let atlas = "--tiles or --tile-size (the atlas)";
         check_grid(self.tiles, 1, (size, size), atlas, &Budget::default())?;
         Ok(TileSetSettings {
@@ -109,8 +155,10 @@ impl SomolConfig {
             min_size: (size * 4 / 5).max(2 * overlap + 1),
             max_size: size,
             overlap,
-            belt: overlap,
-            margin: 2,
+            belt,
+            margin: MARGIN,
+            pull: self.pull,
+            template_candidates: self.template_candidates,
             candidates: self.candidates,
             refine: 4,
             path: self.path,
@@ -191,7 +239,7 @@ impl OmegaConfig {
 }
 
 /// The settings of `tiles make`, by method.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum MakeConfig {
     Somol(SomolConfig),
     Omega(OmegaConfig),
@@ -259,8 +307,8 @@ mod tests {
         assert!(e.contains("--overlap 48"), "{e}");
         let s = SomolConfig::default().settings(&sample, None).unwrap();
         assert_eq!(
-            (s.max_size, s.min_size, s.overlap, s.margin),
-            (100, 80, 10, 2)
+            (s.max_size, s.min_size, s.overlap, s.belt, s.margin),
+            (100, 80, 10, 4, 0)
         );
     }
 }

@@ -95,6 +95,17 @@ pub struct AisFile {
     pub random_mean_f: Option<f64>,
     pub random_best_f: Option<f64>,
     pub random_sets: usize,
+    /// The same at full resolution (Table 2's comparison): the search's
+    /// patches and the random sets' mean and best affinity.
+    #[serde(default)]
+    pub full_f: Option<f64>,
+    #[serde(default)]
+    pub full_random_mean_f: Option<f64>,
+    #[serde(default)]
+    pub full_random_best_f: Option<f64>,
+    /// Seconds of the full-resolution comparison.
+    #[serde(default)]
+    pub full_seconds: f64,
 }
 
 impl TileSetFile {

@@ -17,7 +17,6 @@ use super::tileset::{make_tile_set, TileSetSettings};
 use crate::budget::Budget;
 use crate::imaging::{self, ColorImage};
 use crate::progress::Progress;
-use crate::search::SearchBackend;
 
 /// What a run made, for its report.
 #[derive(Clone, Debug)]
@@ -104,36 +103,42 @@ pub fn omega_evaluator<'a>(
 }
 
 /// Makes an ω-tile set (§4) of `sample` (named `sample_name` in
-/// `tileset.json`) into `dir`: the immune search for its patches on
-/// `backend`, the random baseline and the tiles.
+/// `tileset.json`) into `dir`: the immune search for its patches, the random
+/// baselines (at the search's level and at full resolution) and the tiles.
 pub fn make_omega(
     cfg: &OmegaConfig,
     evaluator: &mut Evaluator,
-    backend: &mut dyn SearchBackend,
     sample: (&ColorImage, &str),
     dir: &Path,
     progress: &dyn Progress,
     started: Instant,
 ) -> Result<Made> {
     let image = sample.0;
-    evaluator.load(backend)?;
     let settings = cfg.ais_settings();
-    let result = ais::search(evaluator, backend, image, &settings, progress)?;
-    let random = if cfg.baseline > 0 {
-        let seed = cfg.seed ^ 0x5eed;
-        ais::random_affinities(
-            evaluator,
-            backend,
-            image,
-            cfg.baseline,
-            settings.lambda,
-            seed,
-        )?
-    } else {
-        Vec::new()
-    };
+    let result = ais::search(evaluator, image, &settings, progress)?;
+    let sets = ais::random_sets(evaluator, image, cfg.baseline, cfg.seed ^ 0x5eed);
+    let random = ais::sample_affinities(evaluator, &sets, settings.lambda)?;
     let t = Instant::now();
-    let (images, built) = ais::build_tiles(evaluator, image, &result.genes);
+    let (full_f, full_random) = if evaluator.steps == 0 {
+        (Some(result.best_f), random.clone())
+    } else if cfg.baseline > 0 {
+        let mut full = Evaluator::at_level(evaluator.set, image, evaluator.tile, 0)?;
+        let f = ais::sample_affinities(
+            &mut full,
+            std::slice::from_ref(&result.genes),
+            settings.lambda,
+        )?;
+        (
+            f.first().copied(),
+            ais::sample_affinities(&mut full, &sets, settings.lambda)?,
+        )
+    } else {
+        (None, Vec::new())
+    };
+    let full_seconds = t.elapsed().as_secs_f64();
+    let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+    let t = Instant::now();
+    let (images, built) = ais::build_tiles(evaluator, image, &result.genes)?;
     let build_seconds = t.elapsed().as_secs_f64();
     write_tiles(dir, &images)?;
     let set: Vec<String> = built.iter().map(|b| b.corners.clone()).collect();
@@ -151,10 +156,13 @@ pub fn make_omega(
         evaluation_steps: evaluator.steps,
         evaluation_side: evaluator.side,
         result: result.clone(),
-        random_mean_f: (!random.is_empty())
-            .then(|| random.iter().sum::<f64>() / random.len() as f64),
+        random_mean_f: mean(&random),
         random_best_f: random.iter().copied().reduce(f64::max),
         random_sets: random.len(),
+        full_f,
+        full_random_mean_f: mean(&full_random),
+        full_random_best_f: full_random.iter().copied().reduce(f64::max),
+        full_seconds,
     }
     .write(dir)?;
     let side = evaluator.tile;

@@ -50,6 +50,11 @@ pub struct StitchSettings {
     pub search: Option<Oscillating>,
     /// Blending range ρ in pixels (0 = a hard cut).
     pub rho: f32,
+    /// Added to the error the search sees per column towards R1's side
+    /// (`pull · (w − 1 − i)`), so that among near-equal paths the one
+    /// farther into R2 wins and R1 covers more; the cut's map, cost and
+    /// blending keep the true error. 0 = the paper's search.
+    pub pull: f32,
 }
 
 impl Default for StitchSettings {
@@ -61,6 +66,7 @@ impl Default for StitchSettings {
         Self {
             search: Some(Oscillating::default()),
             rho: 3.0,
+            pull: 0.0,
         }
     }
 }
@@ -92,9 +98,20 @@ pub fn find_cut(
         }
     }
     let map = ErrorMap::of(w, h, &a, &b);
-    let path = match settings.search {
-        Some(o) => path::oscillating(&map, o),
-        None => path::optimal(&map),
+    let search = |m: &ErrorMap| match settings.search {
+        Some(o) => path::oscillating(m, o),
+        None => path::optimal(m),
+    };
+    let path = if settings.pull > 0.0 && w > 1 {
+        let biased: Vec<f32> = map
+            .e
+            .iter()
+            .enumerate()
+            .map(|(k, &e)| e + settings.pull * (w - 1 - k % w) as f32)
+            .collect();
+        search(&ErrorMap::new(w, h, biased))
+    } else {
+        search(&map)
     };
     let cost = path.cost(&map);
     Cut { map, path, cost }

@@ -33,16 +33,20 @@ fn crop(img: &ColorImage, r: Rect) -> ColorImage {
     img.crop(r.x, r.y, r.width, r.height)
 }
 
-/// Mean Euclidean RGB distance between two `w`-wide strips that start at `a`
-/// and `b` across the image and span `along` (the paper's criterion of visual
-/// consistency, §3.1): column strips, or row strips with `rows`.
-fn strip_error(
+/// The paper's criterion of visual consistency (§3.1) for every candidate
+/// `(position p, size s)` with `s` in `sizes` along one axis: the mean
+/// Euclidean RGB distance between the `w`-wide strips at `p` and `p + s`
+/// (column strips, or row strips with `rows`), over `along` of the other
+/// axis. Per size, one pass sums each line pair's distance and prefix sums
+/// give every position: `O(sizes · len · along)`.
+fn strip_errors(
     img: &ColorImage,
     rows: bool,
-    (a, b): (usize, usize),
+    sizes: std::ops::RangeInclusive<usize>,
     w: usize,
     along: (usize, usize),
-) -> f64 {
+) -> Vec<(f64, usize, usize)> {
+    let len = if rows { img.height } else { img.width };
     let at = |across: usize, t: usize| {
         if rows {
             img.get(t, across)
@@ -50,13 +54,22 @@ fn strip_error(
             img.get(across, t)
         }
     };
-    let mut sum = 0.0;
-    for t in along.0..along.1 {
-        for i in 0..w {
-            sum += f64::from(rgb_distance(at(a + i, t), at(b + i, t)));
-        }
-    }
-    sum / (w * (along.1 - along.0)) as f64
+    let norm = (w * (along.1 - along.0)).max(1) as f64;
+    sizes
+        .filter(|&s| s + w <= len)
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .flat_map_iter(|s| {
+            let mut prefix = vec![0.0f64; len - s + 1];
+            for c in 0..len - s {
+                let d: f64 = (along.0..along.1)
+                    .map(|t| f64::from(rgb_distance(at(c, t), at(c + s, t))))
+                    .sum();
+                prefix[c + 1] = prefix[c] + d;
+            }
+            (0..=len - s - w).map(move |p| ((prefix[p + w] - prefix[p]) / norm, p, s))
+        })
+        .collect()
 }
 
 /// Where the template tile comes from and how well its borders matched.
@@ -68,6 +81,9 @@ pub struct TemplateChoice {
     /// Mean RGB distance of the left/right and top/bottom border strips.
     pub horizontal_error: f64,
     pub vertical_error: f64,
+    /// The overlap `w_T` the template was stitched with (0: not recorded).
+    #[serde(default)]
+    pub overlap: usize,
 }
 
 /// Chooses the template's size (each side in `min..=max`) and position so
@@ -80,6 +96,45 @@ pub fn choose_template(
     max: usize,
     overlap: usize,
 ) -> anyhow::Result<TemplateChoice> {
+    let mut all = choose_templates(sample, min, max, overlap, 1, 1)?;
+    Ok(all.remove(0))
+}
+
+/// The `k` best of the `scored` candidates, best first, each at least
+/// `apart` away from the ones before it in position or size.
+fn best_few(
+    mut scored: Vec<(f64, usize, usize)>,
+    k: usize,
+    apart: usize,
+) -> Vec<(f64, usize, usize)> {
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0).then((a.1, a.2).cmp(&(b.1, b.2))));
+    let mut kept: Vec<(f64, usize, usize)> = Vec::new();
+    for c in scored {
+        if kept.len() >= k {
+            break;
+        }
+        if kept
+            .iter()
+            .all(|o| o.1.abs_diff(c.1) >= apart || o.2.abs_diff(c.2) >= apart)
+        {
+            kept.push(c);
+        }
+    }
+    kept
+}
+
+/// [`choose_template`]'s `kx` best column choices, each with its `ky` best
+/// row choices, best first by column error: placements whose stitches can be
+/// made and compared (the paper's strip error does not see whether a low-
+/// error path exists, §2.1).
+pub fn choose_templates(
+    sample: &ColorImage,
+    min: usize,
+    max: usize,
+    overlap: usize,
+    kx: usize,
+    ky: usize,
+) -> anyhow::Result<Vec<TemplateChoice>> {
     let w = overlap;
     let need = min + w;
     anyhow::ensure!(
@@ -92,35 +147,27 @@ pub fn choose_template(
         sample.width,
         sample.height
     );
-    let best = |cands: Vec<(usize, usize)>, err: &(dyn Fn(usize, usize) -> f64 + Sync)| {
-        cands
-            .into_par_iter()
-            .map(|(p, s)| (err(p, s), p, s))
-            .min_by(|a, b| a.0.total_cmp(&b.0).then((a.1, a.2).cmp(&(b.1, b.2))))
-            .unwrap()
-    };
-    let cands = |len: usize| -> Vec<(usize, usize)> {
-        (min..=max.min(len - w))
-            .flat_map(|s| (0..=len - s - w).map(move |p| (p, s)))
-            .collect()
-    };
-    let (he, x, width) = best(cands(sample.width), &|x, s| {
-        strip_error(sample, false, (x, x + s), w, (0, sample.height))
-    });
-    let cols = (x, x + width + w);
-    let (ve, y, height) = best(cands(sample.height), &|y, s| {
-        strip_error(sample, true, (y, y + s), w, cols)
-    });
-    Ok(TemplateChoice {
-        rect: Rect {
-            x,
-            y,
-            width,
-            height,
-        },
-        horizontal_error: he,
-        vertical_error: ve,
-    })
+    let apart = w.max(2);
+    let mut out = Vec::new();
+    let columns = strip_errors(sample, false, min..=max, w, (0, sample.height));
+    for (he, x, width) in best_few(columns, kx.max(1), apart) {
+        let cols = (x, x + width + w);
+        let rows = strip_errors(sample, true, min..=max, w, cols);
+        for (ve, y, height) in best_few(rows, ky.max(1), apart) {
+            out.push(TemplateChoice {
+                rect: Rect {
+                    x,
+                    y,
+                    width,
+                    height,
+                },
+                horizontal_error: he,
+                vertical_error: ve,
+                overlap: w,
+            });
+        }
+    }
+    Ok(out)
 }
 
 /// The seamless template: the chosen rectangle with the strip right of it

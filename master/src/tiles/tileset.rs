@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use super::patch::{insert_patch, patch_cuts, report, PatchReport};
 use super::stitch::StitchSettings;
-use super::template::{choose_template, make_template, Rect, TemplateChoice};
+use super::template::{choose_template, choose_templates, make_template, Rect, TemplateChoice};
 use crate::imaging::ColorImage;
 use crate::progress::Progress;
 use crate::seams::Oscillating;
@@ -26,6 +26,14 @@ pub struct TileSetSettings {
     pub belt: usize,
     /// Border strip of every tile that patches never touch.
     pub margin: usize,
+    /// Pull of the patch paths towards the tile's edge, per pixel of the
+    /// belt ([`StitchSettings::pull`]; 0 = the paper's search).
+    #[serde(default)]
+    pub pull: f32,
+    /// Template placements whose stitches are made and compared
+    /// ([`choose_template`]'s best few by border error; 1 = the paper's).
+    #[serde(default = "one")]
+    pub template_candidates: usize,
     /// Random candidate patch positions tried per tile.
     pub candidates: usize,
     /// Half-width of the local refinement of the best candidate (the paper's
@@ -48,13 +56,18 @@ pub enum PathSearch {
     Optimal,
 }
 
+fn one() -> usize {
+    1
+}
+
 impl PathSearch {
-    fn stitch_settings(self) -> StitchSettings {
+    fn stitch_settings(self, pull: f32) -> StitchSettings {
         StitchSettings {
             search: match self {
                 Self::Oscillating => Some(Oscillating::default()),
                 Self::Optimal => None,
             },
+            pull,
             ..StitchSettings::default()
         }
     }
@@ -64,6 +77,9 @@ impl PathSearch {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct DerivedTile {
     pub patch: PatchReport,
+    /// The extra patches inside the main one (large tiles).
+    #[serde(default)]
+    pub extra: Vec<PatchReport>,
     /// The mean path error of the random candidates of this tile (what a
     /// random choice would have given, on average).
     pub random_mean_path_error: f64,
@@ -80,15 +96,63 @@ pub struct TileSet {
     pub derived: Vec<DerivedTile>,
 }
 
-/// The template tile: `given` as it is, or chosen and stitched (§3.1).
+/// Mean error per pixel of a template's two stitch paths.
+fn mean_template_error(cuts: &[super::stitch::Cut; 2]) -> f64 {
+    let pixels: usize = cuts.iter().map(|c| c.path.pixels().count()).sum();
+    cuts.iter().map(|c| c.cost).sum::<f64>() / pixels.max(1) as f64
+}
+
+/// How a tile's wrap-around joints compare with its own interior: the mean
+/// luminance step across its right|left and bottom|top joints over the
+/// median step between its other columns and rows (about 1 when the joints
+/// do not show).
+pub fn wrap_ratio(tile: &ColorImage) -> f64 {
+    let g = crate::imaging::colour::luminance(tile);
+    let (w, h) = (g.width, g.height);
+    let col = |a: usize, b: usize| {
+        (0..h)
+            .map(|y| f64::from(g.get(a, y).abs_diff(g.get(b, y))))
+            .sum::<f64>()
+            / h as f64
+    };
+    let row = |a: usize, b: usize| {
+        (0..w)
+            .map(|x| f64::from(g.get(x, a).abs_diff(g.get(x, b))))
+            .sum::<f64>()
+            / w as f64
+    };
+    let mut inner: Vec<f64> = (1..w).map(|x| col(x - 1, x)).collect();
+    inner.extend((1..h).map(|y| row(y - 1, y)));
+    inner.sort_by(f64::total_cmp);
+    let median = inner.get(inner.len() / 2).copied().unwrap_or(0.0);
+    let joint = (col(w - 1, 0) + row(h - 1, 0)) / 2.0;
+    if median > 0.0 {
+        joint / median
+    } else if joint > 0.0 {
+        f64::INFINITY
+    } else {
+        1.0
+    }
+}
+
+/// A stitched template candidate: its rank (joints that show, then their
+/// ratio or the path error), the tile, its placement and path costs.
+type Made = ((bool, f64), ColorImage, TemplateChoice, [f64; 2]);
+
+/// The template tile: `given` as it is, or chosen and stitched (§3.1). With
+/// `template_candidates` above 1, the best few placements at the overlap
+/// `w_T` and at twice it (room for the path to pass round the texture's
+/// objects) are all stitched; among those whose joints step no more than
+/// their interior ([`wrap_ratio`] ≤ 1) the one whose paths have the least
+/// mean error is kept, or else the one whose joints show least.
 fn template_tile(
     sample: &ColorImage,
     given: Option<&ColorImage>,
     s: &TileSetSettings,
     stitch_settings: &StitchSettings,
 ) -> anyhow::Result<(ColorImage, TemplateChoice, [f64; 2])> {
-    Ok(match given {
-        Some(t) => (
+    if let Some(t) = given {
+        return Ok((
             t.clone(),
             TemplateChoice {
                 rect: Rect {
@@ -99,15 +163,51 @@ fn template_tile(
                 },
                 horizontal_error: 0.0,
                 vertical_error: 0.0,
+                overlap: 0,
             },
             [0.0; 2],
-        ),
-        None => {
-            let choice = choose_template(sample, s.min_size, s.max_size, s.overlap)?;
-            let (t, cuts) = make_template(sample, &choice, s.overlap, stitch_settings);
-            (t, choice, [cuts[0].cost, cuts[1].cost])
-        }
-    })
+        ));
+    }
+    if s.template_candidates <= 1 {
+        let choice = choose_template(sample, s.min_size, s.max_size, s.overlap)?;
+        let (t, cuts) = make_template(sample, &choice, s.overlap, stitch_settings);
+        return Ok((t, choice, [cuts[0].cost, cuts[1].cost]));
+    }
+    let mut overlaps = vec![s.overlap];
+    let wide = 2 * s.overlap;
+    if 2 * wide < s.min_size && s.min_size + wide <= sample.width.min(sample.height) {
+        overlaps.push(wide);
+    }
+    let mut choices = Vec::new();
+    for &w in &overlaps {
+        let k = s.template_candidates;
+        choices.extend(choose_templates(
+            sample,
+            s.min_size,
+            s.max_size,
+            w,
+            k,
+            k.min(2),
+        )?);
+    }
+    let made: Vec<Made> = choices
+        .par_iter()
+        .map(|c| {
+            let (t, cuts) = make_template(sample, c, c.overlap, stitch_settings);
+            let ratio = wrap_ratio(&t);
+            let key = if ratio <= 1.0 {
+                (false, mean_template_error(&cuts))
+            } else {
+                (true, ratio)
+            };
+            (key, t, *c, [cuts[0].cost, cuts[1].cost])
+        })
+        .collect();
+    let best = made
+        .into_iter()
+        .min_by(|a, b| a.0 .0.cmp(&b.0 .0).then(a.0 .1.total_cmp(&b.0 .1)))
+        .expect("at least one template placement");
+    Ok((best.1, best.2, best.3))
 }
 
 /// A scored candidate: (mean path error, x, y).
@@ -121,7 +221,7 @@ fn by_score(a: &Scored, b: &Scored) -> std::cmp::Ordering {
 /// candidates that overlaps no `taken` rectangle by more than a quarter,
 /// refined on its `±refine` neighbourhood; and the candidates' mean score.
 fn choose_patch(
-    tile0: &ColorImage,
+    tile: &ColorImage,
     sample: &ColorImage,
     target: Rect,
     taken: &[Rect],
@@ -133,7 +233,7 @@ fn choose_patch(
         ChaCha8Rng::seed_from_u64(s.seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
     let score = |x: usize, y: usize| {
         let source = Rect { x, y, ..target };
-        let (_, cuts) = patch_cuts(tile0, sample, source, target, s.belt, stitch_settings);
+        let (_, cuts) = patch_cuts(tile, sample, source, target, s.belt, stitch_settings);
         report(source, target, &cuts).mean_path_error
     };
     let (xs, ys) = (sample.width - target.width, sample.height - target.height);
@@ -158,16 +258,12 @@ fn choose_patch(
         .or_else(|| scored.iter().min_by(|a, b| by_score(a, b)))
         .copied()
         .unwrap_or((f64::INFINITY, 0, 0));
-    // Local refinement on the ±refine neighbourhood, in steps of 2.
+    // Local refinement on the ±refine neighbourhood, pixel by pixel (so
+    // periodic structure can line up with the template's).
     let (x0, y0) = (pick.1, pick.2);
     let r = s.refine;
     let near: Vec<(usize, usize)> = (x0.saturating_sub(r)..=(x0 + r).min(xs))
-        .step_by(2)
-        .flat_map(|x| {
-            (y0.saturating_sub(r)..=(y0 + r).min(ys))
-                .step_by(2)
-                .map(move |y| (x, y))
-        })
+        .flat_map(|x| (y0.saturating_sub(r)..=(y0 + r).min(ys)).map(move |y| (x, y)))
         .filter(|&(x, y)| free(x, y) || (x, y) == (x0, y0))
         .collect();
     let best = near
@@ -186,27 +282,77 @@ fn choose_patch(
     )
 }
 
+/// The rectangles of the extra patches of a `tw`×`th` tile: none below
+/// [`EXTRA_FROM`] pixels; above, half-size patches centred on the cells of a
+/// `n`×`n` grid (`n` = side / [`EXTRA_FROM`]), shifted by up to a quarter of
+/// a cell (seeded) and kept inside the belts of the tile's own patch.
+fn extra_targets(tw: usize, th: usize, s: &TileSetSettings, k: usize) -> Vec<Rect> {
+    let side = tw.min(th);
+    if side < EXTRA_FROM {
+        return Vec::new();
+    }
+    let n = side / EXTRA_FROM;
+    let p = side / 2;
+    let (lo, hi_x, hi_y) = (
+        s.margin + s.belt,
+        tw.saturating_sub(s.margin + s.belt + p),
+        th.saturating_sub(s.margin + s.belt + p),
+    );
+    if hi_x < lo || hi_y < lo || p <= 2 * s.belt {
+        return Vec::new();
+    }
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(s.seed ^ 0x5EED ^ (k as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+    let place = |rng: &mut ChaCha8Rng, cell: usize, len: usize, hi: usize| {
+        let c = (2 * cell + 1) * len / (2 * n);
+        let j = (len / n / 4) as i64;
+        let c = c as i64 + rng.random_range(-j..=j) - (p / 2) as i64;
+        (c.max(lo as i64) as usize).min(hi)
+    };
+    (0..n * n)
+        .map(|c| {
+            let x = place(&mut rng, c % n, tw, hi_x);
+            let y = place(&mut rng, c / n, th, hi_y);
+            Rect {
+                x,
+                y,
+                width: p,
+                height: p,
+            }
+        })
+        .collect()
+}
+
+/// Tiles at least this large (their smaller side) get extra patches inside
+/// their main one, one per this many pixels of side, squared.
+pub const EXTRA_FROM: usize = 128;
+
 /// Makes a tile set from `sample` (§3): the template of [`choose_template`]
 /// (or `template` as given), then `tiles - 1` tiles, each the template with
-/// one patch from another place of the sample inserted inside its margin, so
+/// a patch from another place of the sample inserted inside its margin, so
 /// every tile keeps the template's borders and connects to every other.
 ///
 /// Patch positions are chosen, not drawn (the paper picks by hand): for each
 /// tile, `candidates` random source positions (seeded) are scored by the mean
 /// error along their four side paths; positions whose rectangle overlaps the
-/// template's source or an earlier tile's patch by more than a quarter are
-/// passed over (so the tiles differ); the best is refined on the
-/// `±refine` neighbourhood, as the paper does.
+/// template's source or an earlier patch by more than a quarter are passed
+/// over (so the tiles differ); the best is refined pixel by pixel on the
+/// `±refine` neighbourhood, as the paper does. The patch reaches to the
+/// `margin` and its paths are pulled towards the edge, so the tile's own
+/// content covers most of it (§4: "the patching process must affect most of
+/// the tile image surface"); large tiles then take half-size patches from
+/// yet other places inside it ([`extra_targets`]).
 pub fn make_tile_set(
     sample: &ColorImage,
     template: Option<&ColorImage>,
     s: &TileSetSettings,
     progress: &dyn Progress,
 ) -> anyhow::Result<TileSet> {
-    let stitch_settings = s.path.stitch_settings();
+    let template_stitch = s.path.stitch_settings(0.0);
+    let stitch_settings = s.path.stitch_settings(s.pull);
     progress.start("tiles", s.tiles as u64, "tiles");
     let t0 = std::time::Instant::now();
-    let (tile0, choice, costs) = template_tile(sample, template, s, &stitch_settings)?;
+    let (tile0, choice, costs) = template_tile(sample, template, s, &template_stitch)?;
     let template_seconds = t0.elapsed().as_secs_f64();
     progress.set_done(1);
     let (tw, th) = (tile0.width, tile0.height);
@@ -244,9 +390,24 @@ pub fn make_tile_set(
         let mut tile = tile0.clone();
         let patch = insert_patch(&mut tile, sample, source, target, s.belt, &stitch_settings);
         taken.push(source);
+        let mut extra = Vec::new();
+        for (e, inner) in extra_targets(tw, th, s, k).into_iter().enumerate() {
+            let key = k + (e + 1) * 1000;
+            let (source, _) = choose_patch(&tile, sample, inner, &taken, key, s, &stitch_settings);
+            extra.push(insert_patch(
+                &mut tile,
+                sample,
+                source,
+                inner,
+                s.belt,
+                &stitch_settings,
+            ));
+            taken.push(source);
+        }
         tiles.push(tile);
         derived.push(DerivedTile {
             patch,
+            extra,
             random_mean_path_error: random_mean,
             seconds: t.elapsed().as_secs_f64(),
         });
