@@ -178,7 +178,7 @@ pub(super) fn spots(p: &[f64], _: &Perlin, u: f64, v: f64) -> f64 {
 }
 
 pub(super) const STRIPES: &[ParamSpec] = &[
-    ParamSpec::new("stripes", 2.0, 24.0, Continuous, "stripes per unit"),
+    ParamSpec::new("stripes", 2.0, 16.0, Continuous, "stripes per unit"),
     ParamSpec::new("angle", 0.0, 180.0, Periodic, "stripe direction, degrees"),
     ParamSpec::new(
         "duty",
