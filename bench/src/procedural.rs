@@ -9,8 +9,9 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use texsyn::imaging;
+use texsyn::imaging::{self, ColorImage};
 use texsyn::procedural::catalogue::{BuildSettings, Catalogue};
+use texsyn::procedural::labels;
 use texsyn::procedural::{match_texture, recovery_trials, MatchSettings};
 use texsyn::procedural::{Kind, LIBRARY};
 
@@ -34,7 +35,12 @@ pub struct MatchArgs {
     /// Photos to match with every shader (skips nothing; none: no photo part).
     #[arg(long, value_delimiter = ',')]
     photos: Vec<PathBuf>,
-    /// Where the photo matches go (PNG side by side: photo | match).
+    /// A label file (see `texsyn::procedural::labels`): its photos, in its
+    /// directory, are matched and judged (family, count within 15%).
+    #[arg(long)]
+    labels: Option<PathBuf>,
+    /// Where the photo matches go (PNG side by side: photo | match; with
+    /// --labels also sheet.png, every labelled photo | its match).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Skip the recovery part.
@@ -127,6 +133,9 @@ pub fn run(a: &MatchArgs) -> Result<()> {
             all_t / all_n.max(1) as f64
         );
     }
+    if let Some(l) = &a.labels {
+        labelled(l, &cat, &settings, a.out.as_deref())?;
+    }
     if !a.photos.is_empty() {
         println!("\nphotos, every shader:");
         println!(
@@ -163,4 +172,111 @@ pub fn run(a: &MatchArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// `photo` and `other` side by side, 8 white pixels apart, both at
+/// `side`² (nearest neighbour, so small photos stay sharp).
+fn pair(photo: &ColorImage, other: &ColorImage, side: usize) -> ColorImage {
+    let mut out = ColorImage::from_vec(2 * side + 8, side, vec![255; (2 * side + 8) * side * 3]);
+    for (img, x0) in [(photo, 0), (other, side + 8)] {
+        for y in 0..side {
+            for x in 0..side {
+                out.set(
+                    x0 + x,
+                    y,
+                    img.get(x * img.width / side, y * img.height / side),
+                );
+            }
+        }
+    }
+    out
+}
+
+/// The labelled photos matched and judged: family and count per photo,
+/// time per photo, the tally, and the sheet.
+fn labelled(
+    file: &std::path::Path,
+    cat: &Catalogue,
+    settings: &MatchSettings,
+    out: Option<&std::path::Path>,
+) -> Result<()> {
+    let text = std::fs::read_to_string(file)
+        .with_context(|| format!("cannot read the labels {}", file.display()))?;
+    let list = labels::parse(&text)?;
+    let dir = file.parent().unwrap_or(std::path::Path::new("."));
+    println!("\nlabelled photos ({}), every shader:", file.display());
+    println!(
+        "photo                          want                 count   found        count  error  right  seconds  cpu-s"
+    );
+    let (mut right, mut family, mut secs) = (0, 0, Vec::new());
+    let mut rows = Vec::new();
+    for l in &list {
+        let img = imaging::load_color(&dir.join(&l.file))?;
+        let cpu = cpu_seconds();
+        let m = match_texture(&img, cat, settings)?;
+        let cpu = cpu_seconds() - cpu;
+        let v = labels::check(l, &m.pattern);
+        right += usize::from(v.right);
+        family += usize::from(v.family_right);
+        secs.push(m.seconds);
+        let num = |x: Option<f64>| x.map_or("-".to_string(), |c| format!("{c:.1}"));
+        println!(
+            "{:<30} {:<20} {:>5}   {:<12} {:>5}  {:>5}  {:<5}  {:>7.1}  {:>5.1}",
+            l.file,
+            l.families.join("|"),
+            num(l.count),
+            m.pattern.shader.name,
+            num(v.count),
+            v.count_error
+                .map_or("-".to_string(), |e| format!("{:.0}%", 100.0 * e)),
+            if v.right { "yes" } else { "no" },
+            m.seconds,
+            cpu
+        );
+        println!("    {}", m.pattern.to_json());
+        rows.push(pair(&img, &m.pattern.render(img.width, img.height), 128));
+    }
+    secs.sort_by(f64::total_cmp);
+    println!(
+        "right {right}/{} (family {family}/{}), seconds per photo {:.1}–{:.1}, median {:.1}",
+        list.len(),
+        list.len(),
+        secs.first().copied().unwrap_or(0.0),
+        secs.last().copied().unwrap_or(0.0),
+        secs.get(secs.len() / 2).copied().unwrap_or(0.0)
+    );
+    if let (Some(dir), Some(first)) = (out, rows.first()) {
+        std::fs::create_dir_all(dir)?;
+        let (w, h) = (first.width, first.height + 4);
+        let cols = 2;
+        let n = rows.len().div_ceil(cols);
+        let mut sheet = ColorImage::from_vec(
+            cols * (w + 12),
+            n * h,
+            vec![255; cols * (w + 12) * n * h * 3],
+        );
+        for (i, r) in rows.iter().enumerate() {
+            let (x0, y0) = ((i % cols) * (w + 12), (i / cols) * h);
+            for y in 0..r.height {
+                for x in 0..r.width {
+                    sheet.set(x0 + x, y0 + y, r.get(x, y));
+                }
+            }
+        }
+        imaging::save_color(&dir.join("sheet.png"), &sheet)?;
+        println!("sheet: {}", dir.join("sheet.png").display());
+    }
+    Ok(())
+}
+
+/// CPU seconds of this process so far (user + system), 0 where unknown.
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    // Fields after the command's closing parenthesis: utime is the 12th.
+    let rest = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|x| x.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) / 100.0
 }

@@ -629,3 +629,46 @@ fn transform_refuses_special_or_damaged_inputs() {
     }
     assert!(!d("frames").exists());
 }
+
+/// The labelled photos (`assets/textures/structure_labels.txt`): the file
+/// parses, names bundled photos, and the structure read before any search
+/// (the periods, §3.2.1) seeds the rows of the photos whose joints are
+/// regular within 15% of the count measured by hand. The whole match of
+/// every labelled photo is `texsyn-bench match --labels`, too slow here.
+#[test]
+fn labelled_photos_seed_their_rows_and_a_planted_label_fails() {
+    use texsyn::procedural::labels::{self, check};
+    use texsyn::procedural::objective::periodicity_of;
+    use texsyn::procedural::periodicity::seeded;
+    let text = std::fs::read_to_string(common::assets().join("structure_labels.txt")).unwrap();
+    let list = labels::parse(&text).unwrap();
+    assert!(list.len() >= 12, "{} labelled photos", list.len());
+    for l in &list {
+        assert!(common::assets().join(&l.file).is_file(), "{}", l.file);
+    }
+    let bricks = by_name("bricks").unwrap();
+    let mid: Vec<f64> = bricks.params.iter().map(|p| p.from_unit(0.5)).collect();
+    for name in ["brick_gray_256.png", "tiles_color_256.png"] {
+        let l = list.iter().find(|l| l.file == name).unwrap();
+        let img = texsyn::procedural::analysis_image(&common::texture(name), 128);
+        let params = seeded(bricks, &mid, &periodicity_of(&img)).expect("rows seen");
+        let found = Pattern {
+            shader: bricks,
+            params,
+            colours: [[0.0; 3], [255.0; 3]],
+        };
+        let v = check(l, &found);
+        assert!(v.right, "{name}: {v:?} against {l:?}");
+        // The same match against a planted wrong label: a count 30% off
+        // and another family both fail.
+        let mut wrong = l.clone();
+        wrong.count = l.count.map(|c| c * 1.3);
+        assert!(!check(&wrong, &found).right, "{name}: planted count passed");
+        wrong = l.clone();
+        wrong.families = vec!["planks".into()];
+        assert!(
+            !check(&wrong, &found).right,
+            "{name}: planted family passed"
+        );
+    }
+}

@@ -61,6 +61,10 @@ pub struct SearchArgs {
     /// the sweeps and the whole-number search.
     #[arg(long, default_value_t = 3)]
     pub finalists: usize,
+    /// Shaders kept for the local search, best by catalogue distance plus
+    /// the structure term (the periods per direction).
+    #[arg(long, default_value_t = 3)]
+    pub families: usize,
     /// Threads (default: all cores); the result is the same for any count.
     #[arg(long)]
     pub threads: Option<usize>,
@@ -79,6 +83,7 @@ impl TryFrom<&SearchArgs> for MatchSettings {
             shaders: (!a.shaders.is_empty()).then(|| a.shaders.clone()),
             disparity: a.disparity,
             finalists: a.finalists,
+            families: a.families,
         };
         s.validate()?;
         Ok(s)

@@ -11,7 +11,7 @@ use argmin::solver::neldermead::NelderMead;
 use rayon::prelude::*;
 
 use super::objective::{evaluate, Eval, Problem, Target};
-use super::shaders::{Kind, Shader};
+use super::shaders::{Kind, Layout, Shader};
 
 /// Nelder–Mead (argmin) on `problem` from the unit-box point `x0`: the
 /// first simplex steps `step` along each axis (inwards at the upper edge);
@@ -80,16 +80,53 @@ pub(super) fn refine(
     Ok((problem.evaluate(&params), first + second))
 }
 
-/// Values per parameter in a [`sweep`].
-const SWEEP: usize = 64;
+/// How hard the finalists are refined.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Effort {
+    /// Values per parameter in a [`sweep`].
+    pub sweep: usize,
+    /// Rounds of the whole-number search.
+    pub integer_rounds: usize,
+    /// New whole-number values swept and refined per parameter and round.
+    pub alternatives: usize,
+    /// When set, the shader's count (its layout's) only moves this share
+    /// (at least 1) from where it is: it was read from the periods, and a
+    /// harmonic may score better on the objective.
+    pub count_window: Option<f64>,
+}
+
+impl Effort {
+    /// One shader searched (its parameters are all the search has).
+    pub const FULL: Self = Self {
+        sweep: 64,
+        integer_rounds: 3,
+        alternatives: 2,
+        count_window: None,
+    };
+    /// Several shaders searched: counts and angles come seeded from the
+    /// target's periods, so the sweeps are coarse and one new whole number
+    /// is tried per parameter, once.
+    pub const LIGHT: Self = Self {
+        sweep: 16,
+        integer_rounds: 1,
+        alternatives: 1,
+        count_window: Some(0.15),
+    };
+}
 
 /// A coordinate sweep: each continuous parameter in turn is set to
-/// [`SWEEP`] values spread over its whole range (the others kept), and the
+/// `values` spread over its whole range (the others kept), and the
 /// best render is kept; repeated while a pass helps, at most twice. The
 /// objective of a periodic pattern along a frequency, an angle or an aspect
 /// is a comb of narrow basins, one per harmonic; a start in the wrong basin
 /// is one the simplex cannot leave, and a sweep crosses them all.
-fn sweep(shader: &'static Shader, from: Eval, target: &Target, evals: &AtomicU64) -> Eval {
+fn sweep(
+    shader: &'static Shader,
+    from: Eval,
+    values: usize,
+    target: &Target,
+    evals: &AtomicU64,
+) -> Eval {
     let mut best = from;
     for _pass in 0..2 {
         let before = best.objective;
@@ -97,12 +134,12 @@ fn sweep(shader: &'static Shader, from: Eval, target: &Target, evals: &AtomicU64
             if spec.kind == Kind::Integer {
                 continue;
             }
-            let tried: Vec<Eval> = (0..SWEEP)
+            let tried: Vec<Eval> = (0..values)
                 .into_par_iter()
                 .map(|k| {
                     let t = match spec.kind {
-                        Kind::Periodic => k as f64 / SWEEP as f64,
-                        _ => k as f64 / (SWEEP - 1) as f64,
+                        Kind::Periodic => k as f64 / values as f64,
+                        _ => k as f64 / (values.max(2) - 1) as f64,
                     };
                     let mut p = best.params.clone();
                     p[i] = spec.from_unit(t);
@@ -133,6 +170,7 @@ fn sweep_and_refine(
     shader: &'static Shader,
     start: &[f64],
     max_iters: u64,
+    effort: Effort,
     target: &Target,
     evals: &AtomicU64,
 ) -> Result<(Eval, u64)> {
@@ -141,7 +179,7 @@ fn sweep_and_refine(
     let mut iters = 0;
     for round in 0..3 {
         let before = best.objective;
-        let swept = sweep(shader, best, target, evals);
+        let swept = sweep(shader, best, effort.sweep, target, evals);
         if round > 0 && swept.objective >= before - 1e-6 {
             best = swept;
             break;
@@ -158,28 +196,40 @@ fn sweep_and_refine(
 }
 
 /// [`sweep_and_refine`], then each whole-number parameter swept: every
-/// value is rendered with the other parameters kept, and the two best new
-/// values are swept and refined with a shorter simplex run each; repeated
-/// while one helps.
+/// value is rendered with the other parameters kept, and the best new
+/// values (two at full effort) are swept and refined with a shorter simplex
+/// run each; repeated while one helps.
 pub(super) fn refine_with_integers(
     shader: &'static Shader,
     start: &[f64],
     max_iters: u64,
+    effort: Effort,
     target: &Target,
     evals: &AtomicU64,
 ) -> Result<(Eval, u64)> {
-    let (mut best, mut iters) = sweep_and_refine(shader, start, max_iters, target, evals)?;
+    let (mut best, mut iters) = sweep_and_refine(shader, start, max_iters, effort, target, evals)?;
     let ints: Vec<usize> = (0..shader.params.len())
         .filter(|&i| shader.params[i].kind == Kind::Integer)
         .collect();
-    for _round in 0..3 {
+    let count = match shader.layout {
+        Layout::Free => None,
+        Layout::Rows { count, .. } | Layout::Lines { count, .. } | Layout::Scatter { count } => {
+            Some(count)
+        }
+    };
+    for _round in 0..effort.integer_rounds {
         let mut improved = false;
         for &i in &ints {
             let spec = &shader.params[i];
             let mut tried: Vec<(f64, f64)> = Vec::new();
             let mut v = spec.min;
+            let here = best.params[i];
+            let near = |v: f64| match effort.count_window {
+                Some(w) if count == Some(i) => (v - here).abs() <= (w * here).max(1.0),
+                _ => true,
+            };
             while v <= spec.max {
-                if v != best.params[i] {
+                if v != here && near(v) {
                     let mut p = best.params.clone();
                     p[i] = v;
                     evals.fetch_add(1, Ordering::Relaxed);
@@ -188,10 +238,11 @@ pub(super) fn refine_with_integers(
                 v += 1.0;
             }
             tried.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
-            for &(_, v) in tried.iter().take(2) {
+            for &(_, v) in tried.iter().take(effort.alternatives) {
                 let mut p = best.params.clone();
                 p[i] = v;
-                let (e, n) = sweep_and_refine(shader, &p, max_iters.div_ceil(2), target, evals)?;
+                let (e, n) =
+                    sweep_and_refine(shader, &p, max_iters.div_ceil(2), effort, target, evals)?;
                 iters += n;
                 if e.objective < best.objective - 1e-9 {
                     best = e;

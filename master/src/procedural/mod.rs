@@ -9,11 +9,14 @@
 //! - [`catalogue`]: the samples of every shader, saved and checked;
 //!   [`sampling`]: adaptive subdivision of each parameter domain (§3.2.1).
 //! - [`pattern`]: a shader with parameters and colours, rendered (§3.1).
+//! - [`periodicity`]: the target's periods, read from its autocorrelation:
+//!   the seeds of counts and angles and the structure term (§3.2.1, §3.3).
 //! - [`colour`]: the closed-form two-colour fit (§3.2).
 //! - [`objective`]: what the local search minimises (§3.2.2).
 //! - [`search`]: global search by admissibility (§3.2.1), then [`local`]:
 //!   Nelder–Mead refinement, sweeps and whole-number steps (§3.2.2).
-//! - [`recovery`]: synthetic targets recovered, for tests and benches.
+//! - [`recovery`]: synthetic targets recovered, for tests and benches;
+//!   [`labels`]: photos labelled with family and count, and the check.
 //! - [`transform`]: paths within a shader, key-textures and jump points
 //!   between shaders (§4); [`jumps`]: the jump points (§4.3).
 //! - [`config`]: the commands' validated configurations; [`animate`]: a
@@ -28,9 +31,11 @@ pub mod colour;
 pub mod config;
 pub mod descriptor;
 pub mod jumps;
+pub mod labels;
 pub mod local;
 pub mod objective;
 pub mod pattern;
+pub mod periodicity;
 pub mod recovery;
 pub mod sampling;
 pub mod search;

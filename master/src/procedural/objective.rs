@@ -10,6 +10,7 @@ use argmin::core::CostFunction;
 
 use super::colour::ColourTarget;
 use super::descriptor::Structure;
+use super::periodicity::Periodicity;
 use super::shaders::{colourise, Kind, Shader};
 use crate::compare::Descriptors;
 use crate::filters::box_blur_lines;
@@ -32,6 +33,13 @@ pub fn analysis_image(img: &ColorImage, size: usize) -> ColorImage {
     ColorImage::from_vec(size, size, r.into_raw())
 }
 
+/// The periods of a square image's luminance.
+pub fn periodicity_of(img: &ColorImage) -> Periodicity {
+    let l = crate::imaging::colour::luminance(img);
+    let v: Vec<f64> = l.data.iter().map(|&x| f64::from(x)).collect();
+    Periodicity::of_values(&v, l.width.min(l.height))
+}
+
 /// What the local search compares each render with.
 pub struct Target {
     pub image: ColorImage,
@@ -39,6 +47,8 @@ pub struct Target {
     /// The S_F spectrum blurred at each of [`BLURS`].
     pub blurred: Vec<Vec<f64>>,
     pub structure: Structure,
+    /// The periods of the target's luminance (the structure seeds and term).
+    pub periodicity: Periodicity,
     pub colours: ColourTarget,
 }
 
@@ -57,6 +67,7 @@ impl Target {
             blurred: blurred_spectra(&descriptors),
             descriptors,
             structure: Structure::of_image(&image),
+            periodicity: periodicity_of(&image),
             colours: ColourTarget::of(&image),
             image,
         })

@@ -17,10 +17,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 use serde_json::{json, Value};
 
-use super::catalogue::{selected, unit_distance, Catalogue};
-use super::local::{refine, refine_with_integers};
+use super::catalogue::{describe, selected, unit_distance, Catalogue};
+use super::local::{refine, refine_with_integers, Effort};
 use super::objective::{Eval, Target};
 use super::pattern::{round, Pattern};
+use super::periodicity::{seeded, Periodicity};
 use super::shaders::{Kind, Shader};
 use crate::imaging::ColorImage;
 
@@ -37,8 +38,12 @@ pub struct MatchSettings {
     /// shader's by more than this.
     pub disparity: f64,
     /// Starting points that go on to the sweeps and the whole-number search:
-    /// the best after their first simplex run.
+    /// the best after their first simplex run (one per shader when several
+    /// shaders are searched).
     pub finalists: usize,
+    /// Shaders kept for the local search when several are searched: the
+    /// best by catalogue distance plus structure term.
+    pub families: usize,
 }
 
 impl Default for MatchSettings {
@@ -49,6 +54,7 @@ impl Default for MatchSettings {
             shaders: None,
             disparity: 0.1,
             finalists: 3,
+            families: 3,
         }
     }
 }
@@ -71,6 +77,11 @@ impl MatchSettings {
             self.finalists
         );
         ensure!(
+            (1..=100).contains(&self.families),
+            "--families {} must be in 1..=100",
+            self.families
+        );
+        ensure!(
             self.disparity >= 0.0,
             "--disparity {} must be ≥ 0",
             self.disparity
@@ -87,6 +98,11 @@ pub struct Candidate {
     /// Global-search distance of the starting sample (structure, 0..1).
     pub catalogue_distance: f64,
     pub admissibility: f64,
+    /// Whether the start was placed by the target's periods.
+    pub seeded: bool,
+    /// The structure term of the start's shader against the target
+    /// (periods per direction; 0 alike).
+    pub structure: f64,
     /// The objective after the first simplex run (the screening).
     pub screened: f64,
     /// The objective after the sweeps and the whole-number search, for the
@@ -152,11 +168,28 @@ struct Start {
     params: Vec<f64>,
     distance: f64,
     admissibility: f64,
+    seeded: bool,
+    /// The structure term of the shader's first start.
+    structure: f64,
+}
+
+/// Weight of the structure term where shaders are ranked against each
+/// other (the objectives are about 1 to 2, the term 0 to 1).
+const STRUCTURE_WEIGHT: f64 = 1.0;
+
+/// The structure term of `params` of `sh` against the target.
+fn structure_term(sh: &Shader, params: &[f64], target: &Target) -> f64 {
+    let n = target.periodicity.size;
+    let field = sh.render_field(params, n, n, n);
+    target
+        .periodicity
+        .distance(&Periodicity::of_field(&field, n))
 }
 
 /// The global search: starting points per shader, in admissibility order.
 fn starting_points(cat: &Catalogue, target: &Target, s: &MatchSettings) -> Result<Vec<Start>> {
     let shaders = selected(s.shaders.as_deref())?;
+    tracing::debug!(periods = ?target.periodicity, "target periods");
     let mut per_shader = Vec::new();
     for sh in shaders {
         let Some(samples) = cat.of(sh.name) else {
@@ -192,27 +225,71 @@ fn starting_points(cat: &Catalogue, target: &Target, s: &MatchSettings) -> Resul
                     params: x.params.clone(),
                     distance: d,
                     admissibility: x.admissibility,
+                    seeded: false,
+                    structure: 0.0,
                 });
             }
         }
+        // The start placed by the target's periods (the best sample with
+        // its counts and angle read from them), first.
+        if let Some((base, adm)) = chosen.first().map(|c| (c.params.clone(), c.admissibility)) {
+            if let Some(p) = seeded(sh, &base, &target.periodicity) {
+                if chosen.iter().all(|c| c.params != p) {
+                    let d = describe(sh, &p, cat.size).distance(&target.structure);
+                    chosen.insert(
+                        0,
+                        Start {
+                            shader: sh,
+                            params: p,
+                            distance: d,
+                            admissibility: adm,
+                            seeded: true,
+                            structure: 0.0,
+                        },
+                    );
+                    chosen.truncate(s.starts + 1);
+                }
+            }
+        }
         if let Some(first) = chosen.first() {
-            per_shader.push((first.distance, chosen));
+            let t = structure_term(sh, &first.params, target);
+            let d = chosen
+                .iter()
+                .map(|c| c.distance)
+                .fold(f64::INFINITY, f64::min);
+            tracing::debug!(
+                shader = sh.name,
+                distance = d,
+                structure = t,
+                first = ?first.params,
+                seeded = first.seeded,
+                "shader ranked"
+            );
+            for c in &mut chosen {
+                c.structure = t;
+            }
+            per_shader.push((d + STRUCTURE_WEIGHT * t, chosen));
         }
     }
     ensure!(
         !per_shader.is_empty(),
         "the catalogue has none of the selected shaders; rebuild it"
     );
-    let best = per_shader
-        .iter()
-        .map(|(d, _)| *d)
-        .fold(f64::INFINITY, f64::min);
+    // Families ranked by structure first: catalogue distance plus the
+    // structure term; the best few within the disparity go on.
+    per_shader.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let best = per_shader[0].0;
     let mut starts: Vec<Start> = per_shader
         .into_iter()
+        .take(s.families)
         .filter(|(d, _)| *d <= best + s.disparity)
         .flat_map(|(_, c)| c)
         .collect();
-    starts.sort_by(|a, b| b.admissibility.total_cmp(&a.admissibility));
+    starts.sort_by(|a, b| {
+        b.seeded
+            .cmp(&a.seeded)
+            .then(b.admissibility.total_cmp(&a.admissibility))
+    });
     Ok(starts)
 }
 
@@ -246,10 +323,20 @@ pub(super) fn match_prepared(
 ) -> Result<MatchResult> {
     let starts = starting_points(cat, target, settings)?;
     let evals = AtomicU64::new(0);
+    // Several shaders: the search's effort goes to choosing the shader,
+    // whose counts and angles come seeded from the target's periods.
+    let several = starts
+        .iter()
+        .any(|x| x.shader.name != starts[0].shader.name);
+    let (screen_iters, effort) = if several {
+        (settings.max_iters.div_ceil(2), Effort::LIGHT)
+    } else {
+        (settings.max_iters, Effort::FULL)
+    };
     // Screening: one simplex run from every start.
     let screened: Vec<(Eval, u64)> = starts
         .par_iter()
-        .map(|s| refine(s.shader, &s.params, settings.max_iters, target, &evals))
+        .map(|s| refine(s.shader, &s.params, screen_iters, target, &evals))
         .collect::<Result<_>>()?;
     let mut order: Vec<usize> = (0..starts.len()).collect();
     order.sort_by(|&a, &b| {
@@ -259,7 +346,23 @@ pub(super) fn match_prepared(
             .total_cmp(&screened[b].0.objective)
             .then(a.cmp(&b))
     });
+    // Several shaders: the finalists are the best start of each of the
+    // best shaders, so one shader's starts cannot crowd out the others.
+    if several {
+        let mut seen: Vec<&str> = Vec::new();
+        order.retain(|&k| {
+            let name = starts[k].shader.name;
+            let new = !seen.contains(&name);
+            seen.push(name);
+            new
+        });
+    }
     order.truncate(settings.finalists);
+    tracing::debug!(
+        renders = evals.load(Ordering::Relaxed),
+        seconds = started.elapsed().as_secs_f64(),
+        "screened"
+    );
     // The finalists: sweeps, simplex runs and the whole-number search.
     let finals: Vec<(usize, Eval, u64)> = order
         .par_iter()
@@ -268,9 +371,16 @@ pub(super) fn match_prepared(
                 starts[k].shader,
                 &screened[k].0.params,
                 settings.max_iters,
+                effort,
                 target,
                 &evals,
             )?;
+            tracing::debug!(
+                shader = starts[k].shader.name,
+                renders = evals.load(Ordering::Relaxed),
+                seconds = started.elapsed().as_secs_f64(),
+                "finalist done"
+            );
             Ok((k, e, n + screened[k].1))
         })
         .collect::<Result<_>>()?;
@@ -281,26 +391,36 @@ pub(super) fn match_prepared(
             shader: s.shader.name.to_string(),
             catalogue_distance: round(s.distance, 5),
             admissibility: round(s.admissibility, 3),
+            seeded: s.seeded,
+            structure: round(s.structure, 4),
             screened: round(e.objective, 5),
             objective: None,
             iterations: *n,
         })
         .collect();
-    let mut best: Option<(usize, Eval, u64)> = None;
+    // Across shaders the structure term counts too (§3.3): a grid's lines
+    // where the target has none cost it the match.
+    let mut best: Option<(f64, usize, Eval, u64)> = None;
     for (k, e, iters) in finals {
         candidates[k].objective = Some(round(e.objective, 5));
         candidates[k].iterations = iters;
+        let rank = if several {
+            e.objective + STRUCTURE_WEIGHT * structure_term(starts[k].shader, &e.params, target)
+        } else {
+            e.objective
+        };
         tracing::debug!(
             shader = starts[k].shader.name,
             objective = e.objective,
+            rank,
             iters,
             "finalist refined"
         );
-        if best.as_ref().is_none_or(|b| e.objective < b.1.objective) {
-            best = Some((k, e, iters));
+        if best.as_ref().is_none_or(|b| rank < b.0) {
+            best = Some((rank, k, e, iters));
         }
     }
-    let (k, e, iterations) = best.context("no starting point")?;
+    let (_, k, e, iterations) = best.context("no starting point")?;
     Ok(MatchResult {
         pattern: Pattern {
             shader: starts[k].shader,

@@ -1,5 +1,6 @@
 //! The geometric family of the shader library (Bourque–Dudek §3.1): cells,
-//! bricks, spots, stripes and stars, built on a cell hash.
+//! bricks, planks, spots, stripes and stars, built on a cell hash. Counts
+//! run from a few per unit to a couple of dozen, as in material photos.
 
 use noise::{NoiseFn, Perlin};
 
@@ -27,8 +28,8 @@ pub(super) fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
 pub(super) const CELLS: &[ParamSpec] = &[
     ParamSpec::new(
         "cells",
-        3.0,
-        10.0,
+        2.0,
+        20.0,
         Integer,
         "cells per unit (Worley points on a jittered grid)",
     ),
@@ -77,7 +78,7 @@ pub(super) fn cells(p: &[f64], _: &Perlin, u: f64, v: f64) -> f64 {
 }
 
 pub(super) const BRICKS: &[ParamSpec] = &[
-    ParamSpec::new("rows", 3.0, 10.0, Integer, "brick rows per unit"),
+    ParamSpec::new("rows", 2.0, 24.0, Integer, "brick rows per unit"),
     ParamSpec::new(
         "aspect",
         1.0,
@@ -100,17 +101,28 @@ pub(super) const BRICKS: &[ParamSpec] = &[
         "every other row shifted by 0, ¼ or ½ a brick (stack, quarter, running bond)",
     ),
     ParamSpec::new("grain", 0.0, 0.4, Continuous, "noise on the bricks' faces"),
+    ParamSpec::new(
+        "angle",
+        0.0,
+        180.0,
+        Periodic,
+        "direction across the rows, degrees (90: horizontal rows)",
+    ),
 ];
 
 pub(super) fn bricks(p: &[f64], n: &Perlin, u: f64, v: f64) -> f64 {
-    let (y, len) = (v * p[0], p[1]);
+    // Rows stacked across `angle` (90°: horizontal rows).
+    let a = p[5].to_radians();
+    let (c, s) = (a.cos(), a.sin());
+    let (across, along) = (u * c + v * s, u * s - v * c);
+    let (y, len) = (across * p[0], p[1]);
     let row = y.floor();
     let shift = if (row as i64).rem_euclid(2) == 1 {
         0.25 * p[3]
     } else {
         0.0
     };
-    let x = u * p[0] / len + shift;
+    let x = along * p[0] / len + shift;
     let col = x.floor();
     // Distances to the brick's edges, in brick heights.
     let dy = (y - row).min(1.0 - (y - row));
@@ -118,7 +130,7 @@ pub(super) fn bricks(p: &[f64], n: &Perlin, u: f64, v: f64) -> f64 {
     let edge = dx.min(dy);
     let half = p[2] / 2.0;
     let inside = smoothstep(half - 0.03, half + 0.03, edge);
-    let grain = n.get([u * p[0] * 3.0 + 0.5, v * p[0] * 3.0 + 0.25]);
+    let grain = n.get([along * p[0] * 3.0 + 0.5, across * p[0] * 3.0 + 0.25]);
     let shade = 0.8 + 0.1 * hash01(col as i64, row as i64, 23) + p[4] * grain;
     inside * shade
 }
@@ -126,8 +138,8 @@ pub(super) fn bricks(p: &[f64], n: &Perlin, u: f64, v: f64) -> f64 {
 pub(super) const SPOTS: &[ParamSpec] = &[
     ParamSpec::new(
         "spots",
-        3.0,
-        10.0,
+        2.0,
+        16.0,
         Integer,
         "spots per unit (one per cell, jittered)",
     ),
@@ -235,4 +247,51 @@ pub(super) fn stars(p: &[f64], _: &Perlin, u: f64, v: f64) -> f64 {
     let centre_side = ex * (0.0 - ay) - ey * (0.0 - ax);
     let s = if centre_side >= 0.0 { side } else { -side };
     smoothstep(-0.015, 0.015, s)
+}
+
+pub(super) const PLANKS: &[ParamSpec] = &[
+    ParamSpec::new("boards", 2.0, 20.0, Integer, "boards per unit, across"),
+    ParamSpec::new(
+        "angle",
+        0.0,
+        180.0,
+        Periodic,
+        "direction across the boards, degrees (0: vertical boards)",
+    ),
+    ParamSpec::new(
+        "length",
+        2.0,
+        12.0,
+        Continuous,
+        "board length over width (end joints staggered per board)",
+    ),
+    ParamSpec::new(
+        "gap",
+        0.03,
+        0.3,
+        Continuous,
+        "gap between boards, fraction of a board's width",
+    ),
+    ParamSpec::new("grain", 0.0, 0.5, Continuous, "streaks along the boards"),
+];
+
+/// Parallel boards of `boards` per unit across direction `angle`, each of
+/// its own shade, with end joints staggered at random per board and grain
+/// stretched along it: unlike bricks, only one direction repeats.
+pub(super) fn planks(p: &[f64], n: &Perlin, u: f64, v: f64) -> f64 {
+    let a = p[1].to_radians();
+    let (c, s) = (a.cos(), a.sin());
+    let across = p[0] * (u * c + v * s);
+    let along = p[0] * (-u * s + v * c);
+    let board = across.floor();
+    let b = board as i64;
+    let seg_pos = along / p[2] + hash01(b, 0, 41);
+    let seg = seg_pos.floor();
+    let dx = (across - board).min(1.0 - (across - board));
+    let dy = (seg_pos - seg).min(1.0 - (seg_pos - seg)) * p[2];
+    let half = p[3] / 2.0;
+    let inside = smoothstep(half - 0.03, half + 0.03, dx.min(dy));
+    let grain = n.get([across * 4.0 + 0.5, along * 0.3 + 0.25]);
+    let shade = 0.75 + 0.2 * hash01(b, seg as i64, 43) + p[4] * grain;
+    inside * shade
 }

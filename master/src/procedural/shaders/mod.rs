@@ -91,11 +91,32 @@ impl ParamSpec {
 /// (RGB, 0..=255), in between a straight mix.
 pub const COLOUR_PARAMS: [&str; 2] = ["colour_low", "colour_high"];
 
+/// Which parameters a texture's periods set (the seeds of the global
+/// search, Bourque–Dudek §3.2.1; see `periodicity`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// Nothing repeats at a set period (noise).
+    Free,
+    /// Rows: `count` rows per unit from the period across them, `aspect`
+    /// (when given) from the period along them over that one, `angle` (when
+    /// given) the direction across them (else rows are horizontal).
+    Rows {
+        count: usize,
+        aspect: Option<usize>,
+        angle: Option<usize>,
+    },
+    /// Parallel lines: `count` per unit and the `angle` across them.
+    Lines { count: usize, angle: usize },
+    /// Scattered features: `count` per unit from their spacing.
+    Scatter { count: usize },
+}
+
 /// A procedural shader: declared parameters and its pattern.
 pub struct Shader {
     pub name: &'static str,
     pub doc: &'static str,
     pub params: &'static [ParamSpec],
+    pub layout: Layout,
     pattern: fn(&[f64], &Perlin, f64, f64) -> f64,
     seed: u32,
 }
@@ -198,7 +219,9 @@ mod geometric;
 mod noise;
 
 use self::noise::{clouds, marble, turbulence, wood, CLOUDS, MARBLE, WOOD};
-use geometric::{bricks, cells, spots, stars, stripes, BRICKS, CELLS, SPOTS, STARS, STRIPES};
+use geometric::{
+    bricks, cells, planks, spots, stars, stripes, BRICKS, CELLS, PLANKS, SPOTS, STARS, STRIPES,
+};
 
 /// The library, in a fixed order (catalogues refer to shaders by name).
 pub static LIBRARY: &[Shader] = &[
@@ -206,6 +229,7 @@ pub static LIBRARY: &[Shader] = &[
         name: "clouds",
         doc: "fractal Perlin noise (fBm, 4 octaves)",
         params: CLOUDS,
+        layout: Layout::Free,
         pattern: clouds,
         seed: 101,
     },
@@ -213,6 +237,7 @@ pub static LIBRARY: &[Shader] = &[
         name: "turbulence",
         doc: "sum of |Perlin noise| over 4 octaves: creased, fiery",
         params: CLOUDS,
+        layout: Layout::Free,
         pattern: turbulence,
         seed: 202,
     },
@@ -220,6 +245,7 @@ pub static LIBRARY: &[Shader] = &[
         name: "marble",
         doc: "sine veins distorted by turbulence",
         params: MARBLE,
+        layout: Layout::Lines { count: 0, angle: 1 },
         pattern: marble,
         seed: 303,
     },
@@ -227,6 +253,7 @@ pub static LIBRARY: &[Shader] = &[
         name: "wood",
         doc: "noisy growth rings round an axis off the square",
         params: WOOD,
+        layout: Layout::Free,
         pattern: wood,
         seed: 404,
     },
@@ -234,6 +261,7 @@ pub static LIBRARY: &[Shader] = &[
         name: "cells",
         doc: "Worley noise: dots to cell walls",
         params: CELLS,
+        layout: Layout::Scatter { count: 0 },
         pattern: cells,
         seed: 505,
     },
@@ -241,6 +269,11 @@ pub static LIBRARY: &[Shader] = &[
         name: "bricks",
         doc: "running-bond bricks with mortar",
         params: BRICKS,
+        layout: Layout::Rows {
+            count: 0,
+            aspect: Some(1),
+            angle: Some(5),
+        },
         pattern: bricks,
         seed: 606,
     },
@@ -248,6 +281,7 @@ pub static LIBRARY: &[Shader] = &[
         name: "spots",
         doc: "soft round spots, one per jittered cell",
         params: SPOTS,
+        layout: Layout::Scatter { count: 0 },
         pattern: spots,
         seed: 707,
     },
@@ -255,6 +289,7 @@ pub static LIBRARY: &[Shader] = &[
         name: "stripes",
         doc: "straight stripes at any angle",
         params: STRIPES,
+        layout: Layout::Lines { count: 0, angle: 1 },
         pattern: stripes,
         seed: 808,
     },
@@ -262,8 +297,21 @@ pub static LIBRARY: &[Shader] = &[
         name: "stars",
         doc: "a grid of n-pointed stars",
         params: STARS,
+        layout: Layout::Rows {
+            count: 1,
+            aspect: None,
+            angle: None,
+        },
         pattern: stars,
         seed: 909,
+    },
+    Shader {
+        name: "planks",
+        doc: "parallel boards with staggered end joints and grain",
+        params: PLANKS,
+        layout: Layout::Lines { count: 0, angle: 1 },
+        pattern: planks,
+        seed: 1010,
     },
 ];
 
@@ -315,7 +363,7 @@ mod tests {
     fn integer_and_periodic_parameters_are_made_legal() {
         let rows = &BRICKS[0];
         assert_eq!(rows.legal(4.4), 4.0);
-        assert_eq!(rows.legal(99.0), 10.0);
+        assert_eq!(rows.legal(99.0), 24.0);
         let angle = &STRIPES[1];
         assert_eq!(angle.legal(190.0), 10.0);
         assert!((angle.distance(1.0, 179.0) - 2.0 / 180.0).abs() < 1e-12);

@@ -1,0 +1,373 @@
+//! The periods of a texture, read from its autocorrelation (Bourque–Dudek
+//! §3.3: the power spectrum is what tells textures apart; its inverse
+//! transform, the autocorrelation, puts the fundamental period of each
+//! direction at its first peak, where the spectrum shows harmonics too).
+//!
+//! Used before any colour is fitted (§3.2.1): the periods seed the counts
+//! and angles of the shaders' starting points, and [`Periodicity::distance`]
+//! is the structure term that ranks shader families: planks repeat in one
+//! direction, a grid of bricks in two.
+
+use rustfft::{num_complex::Complex, FftPlanner};
+
+use super::shaders::{Layout, Shader};
+use crate::filters::box_blur_lines;
+
+/// Directions in which the period is read, over 180°.
+pub const DIRECTIONS: usize = 36;
+/// Shortest period read, in pixels.
+const MIN_PERIOD: f64 = 3.0;
+/// A peak counts when it rises this far above the lowest correlation
+/// before it.
+const PROMINENCE: f64 = 0.08;
+/// The period is the first peak at least this share of the highest one in
+/// the direction (a weaker earlier bump is texture within the period).
+const FIRST_PEAK_SHARE: f64 = 0.6;
+
+/// The first clear autocorrelation peak of one direction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Peak {
+    /// Lag of the peak in pixels (0 when there is none).
+    pub period: f64,
+    /// Its height above the lowest correlation before it (0: no period).
+    pub strength: f64,
+}
+
+/// The periods of a square grey image.
+#[derive(Clone, Debug)]
+pub struct Periodicity {
+    /// Side of the analysed image in pixels.
+    pub size: usize,
+    /// Per direction k, at k·180/[`DIRECTIONS`] degrees from the x axis
+    /// towards y (image rows go down): the first peak.
+    pub lines: Vec<Peak>,
+    /// The first peak of the correlation averaged over all directions (the
+    /// spacing of scattered features).
+    pub radial: Peak,
+}
+
+impl Periodicity {
+    /// The periods of the `n`×`n` grey values `v` (row-major), read from
+    /// their high-pass (the values less a box blur of side n/16): joints
+    /// and edges repeat where the shades of tiles between them do not.
+    pub fn of_values(v: &[f64], n: usize) -> Self {
+        let mut low = v.to_vec();
+        if low.len() == n * n && n > 0 {
+            let r = (n / 32).max(1);
+            for _ in 0..2 {
+                box_blur_lines(&mut low, n, n, r, 1, n);
+                box_blur_lines(&mut low, n, n, r, n, 1);
+            }
+        }
+        let high: Vec<f64> = v.iter().zip(&low).map(|(a, b)| a - b).collect();
+        let rho = autocorrelation(&high, n);
+        let m = 2 * n;
+        let at = |x: f64, y: f64| -> f64 {
+            // Bilinear over the wrapped lag grid.
+            let (x0, y0) = (x.floor(), y.floor());
+            let (fx, fy) = (x - x0, y - y0);
+            let idx = |a: f64, b: f64| {
+                let (a, b) = (
+                    (a as i64).rem_euclid(m as i64) as usize,
+                    (b as i64).rem_euclid(m as i64) as usize,
+                );
+                rho[b * m + a]
+            };
+            idx(x0, y0) * (1.0 - fx) * (1.0 - fy)
+                + idx(x0 + 1.0, y0) * fx * (1.0 - fy)
+                + idx(x0, y0 + 1.0) * (1.0 - fx) * fy
+                + idx(x0 + 1.0, y0 + 1.0) * fx * fy
+        };
+        let reach = n / 2;
+        let profiles: Vec<Vec<f64>> = (0..DIRECTIONS)
+            .map(|k| {
+                let a = std::f64::consts::PI * k as f64 / DIRECTIONS as f64;
+                (0..=reach)
+                    .map(|r| at(r as f64 * a.cos(), r as f64 * a.sin()))
+                    .collect()
+            })
+            .collect();
+        let radial: Vec<f64> = (0..=reach)
+            .map(|r| profiles.iter().map(|p| p[r]).sum::<f64>() / DIRECTIONS as f64)
+            .collect();
+        Self {
+            size: n,
+            lines: profiles.iter().map(|p| first_peak(p)).collect(),
+            radial: first_peak(&radial),
+        }
+    }
+
+    /// The periods of a rendered pattern.
+    pub fn of_field(field: &[f32], n: usize) -> Self {
+        let v: Vec<f64> = field.iter().map(|&x| f64::from(x)).collect();
+        Self::of_values(&v, n)
+    }
+
+    /// The strongest direction's index and its peak.
+    pub fn strongest(&self) -> (usize, Peak) {
+        let mut best = (0, self.lines[0]);
+        for (k, p) in self.lines.iter().enumerate() {
+            if p.strength > best.1.strength {
+                best = (k, *p);
+            }
+        }
+        best
+    }
+
+    /// The direction across parallel lines: among the directions with a
+    /// period nearly as strong as the strongest, the one of shortest period
+    /// (along any other direction the same lines repeat more slowly).
+    pub fn across(&self) -> Option<(f64, Peak)> {
+        let (_, top) = self.strongest();
+        if top.strength < 2.0 * PROMINENCE {
+            return None;
+        }
+        let (k, p) = self
+            .lines
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p.strength >= 0.7 * top.strength)
+            .min_by(|a, b| a.1.period.total_cmp(&b.1.period).then(a.0.cmp(&b.0)))?;
+        Some((180.0 * k as f64 / DIRECTIONS as f64, *p))
+    }
+
+    /// The peak of the direction nearest `degrees`.
+    pub fn along(&self, degrees: f64) -> Peak {
+        let k = (degrees / 180.0 * DIRECTIONS as f64).round() as i64;
+        self.lines[k.rem_euclid(DIRECTIONS as i64) as usize]
+    }
+
+    /// The structure term: how differently two textures repeat, direction
+    /// by direction. Each side's peak strengths are taken relative to its
+    /// strongest (how anisotropic it is, not how sharp: a photo repeats
+    /// less cleanly than a render); the term is the mean difference of
+    /// those, plus, where both repeat, the log ratio of their periods
+    /// weighted by the weaker. 0 for the same periods; a pattern repeating
+    /// in two directions against one repeating in one scores high.
+    pub fn distance(&self, other: &Self) -> f64 {
+        let scale = other.size as f64 / self.size.max(1) as f64;
+        let n = self.lines.len().min(other.lines.len()).max(1) as f64;
+        let top = |p: &Self| p.lines.iter().map(|x| x.strength).fold(0.0, f64::max);
+        let (ta, tb) = (top(self), top(other));
+        if ta == 0.0 || tb == 0.0 {
+            return if ta == tb { 0.0 } else { 1.0 };
+        }
+        let mut s = 0.0;
+        for (a, b) in self.lines.iter().zip(&other.lines) {
+            let (sa, sb) = (a.strength / ta, b.strength / tb);
+            s += (sa - sb).abs();
+            let w = sa.min(sb);
+            if w > 0.0 {
+                s += w * (a.period * scale / b.period).ln().abs().min(1.0);
+            }
+        }
+        s / n
+    }
+}
+
+/// `base` with the parameters `s`'s layout names set from the periods
+/// `per` (§3.2.1: a start placed by the target's structure, so a count is
+/// read from the fundamental period rather than found by search); `None`
+/// when the layout has none or the target shows no such period.
+pub fn seeded(s: &Shader, base: &[f64], per: &Periodicity) -> Option<Vec<f64>> {
+    let n = per.size as f64;
+    let mut p = base.to_vec();
+    let strong = |k: &Peak| k.strength >= 2.0 * PROMINENCE && k.period > 0.0;
+    match s.layout {
+        Layout::Free => return None,
+        Layout::Rows {
+            count,
+            aspect,
+            angle,
+        } => {
+            let (across, v) = match angle {
+                Some(_) => per.across()?,
+                None => (90.0, per.along(90.0)),
+            };
+            if !strong(&v) {
+                return None;
+            }
+            p[count] = n / v.period;
+            if let Some(k) = angle {
+                p[k] = across;
+            }
+            if let Some(a) = aspect {
+                let h = per.along(across + 90.0);
+                if h.strength >= PROMINENCE && h.period > 0.0 {
+                    p[a] = h.period / v.period;
+                }
+            }
+        }
+        Layout::Lines { count, angle } => {
+            let (a, k) = per.across()?;
+            p[count] = n / k.period;
+            p[angle] = a;
+        }
+        Layout::Scatter { count } => {
+            if !strong(&per.radial) {
+                return None;
+            }
+            p[count] = n / per.radial.period;
+        }
+    }
+    Some(s.legal(&p))
+}
+
+/// The normalised linear autocorrelation of `v` (`n`×`n`), on the wrapped
+/// lag grid of side 2n: each lag divided by its overlap, then by the
+/// variance, so lag 0 is 1.
+fn autocorrelation(v: &[f64], n: usize) -> Vec<f64> {
+    let m = 2 * n;
+    let len = v.len().max(1) as f64;
+    let mean = v.iter().sum::<f64>() / len;
+    let mut buf = vec![Complex::new(0.0, 0.0); m * m];
+    for y in 0..n {
+        for x in 0..n {
+            buf[y * m + x] = Complex::new(v.get(y * n + x).copied().unwrap_or(mean) - mean, 0.0);
+        }
+    }
+    let mut planner = FftPlanner::new();
+    fft2(&mut buf, m, planner.plan_fft_forward(m).as_ref());
+    buf.iter_mut()
+        .for_each(|c| *c = Complex::new(c.norm_sqr(), 0.0));
+    fft2(&mut buf, m, planner.plan_fft_inverse(m).as_ref());
+    let zero = buf[0].re;
+    let lag = |k: usize| if k > n { m - k } else { k };
+    (0..m * m)
+        .map(|i| {
+            let (x, y) = (lag(i % m), lag(i / m));
+            if zero <= 1e-12 || x >= n || y >= n {
+                return 0.0;
+            }
+            let overlap = ((n - x) * (n - y)) as f64 / (n * n) as f64;
+            buf[i].re / overlap / zero
+        })
+        .collect()
+}
+
+/// A 2-D transform of the `m`×`m` `buf` in place: rows, then columns.
+fn fft2(buf: &mut [Complex<f64>], m: usize, plan: &dyn rustfft::Fft<f64>) {
+    for row in buf.chunks_exact_mut(m) {
+        plan.process(row);
+    }
+    let mut col = vec![Complex::new(0.0, 0.0); m];
+    for x in 0..m {
+        for y in 0..m {
+            col[y] = buf[y * m + x];
+        }
+        plan.process(&mut col);
+        for y in 0..m {
+            buf[y * m + x] = col[y];
+        }
+    }
+}
+
+/// The first clear peak of a correlation profile (index = lag).
+fn first_peak(p: &[f64]) -> Peak {
+    let none = Peak {
+        period: 0.0,
+        strength: 0.0,
+    };
+    let start = MIN_PERIOD.ceil() as usize;
+    if p.len() < start + 2 {
+        return none;
+    }
+    let mut low = f64::INFINITY;
+    let mut peaks: Vec<(usize, f64)> = Vec::new();
+    for r in 1..p.len() - 1 {
+        low = low.min(p[r]);
+        if r >= start && p[r] >= p[r - 1] && p[r] > p[r + 1] {
+            let rise = p[r] - low;
+            if rise >= PROMINENCE && p[r] > 0.0 {
+                peaks.push((r, rise));
+            }
+        }
+    }
+    let top = peaks.iter().map(|x| x.1).fold(0.0, f64::max);
+    let Some(&(r, rise)) = peaks.iter().find(|x| x.1 >= FIRST_PEAK_SHARE * top) else {
+        return none;
+    };
+    // The peak's lag refined by the parabola through its neighbours.
+    let (a, b, c) = (p[r - 1], p[r], p[r + 1]);
+    let den = a - 2.0 * b + c;
+    let shift = if den.abs() > 1e-12 {
+        (0.5 * (a - c) / den).clamp(-0.5, 0.5)
+    } else {
+        0.0
+    };
+    Peak {
+        period: r as f64 + shift,
+        strength: rise,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::procedural::shaders::by_name;
+
+    #[test]
+    fn stripes_give_their_period_and_direction_not_a_harmonic() {
+        let s = by_name("stripes").unwrap();
+        let n = 128;
+        // 7 stripes per unit across 30°: period 128/7 ≈ 18.3 px.
+        let f = s.render_field(&[7.0, 30.0, 0.3, 0.1], n, n, n);
+        let p = Periodicity::of_field(&f, n);
+        let (angle, peak) = p.across().expect("stripes repeat");
+        assert!((angle - 30.0).abs() <= 5.0, "{angle}");
+        let count = n as f64 / peak.period;
+        assert!((count - 7.0).abs() < 0.5, "{count}");
+    }
+
+    #[test]
+    fn planks_repeat_in_one_direction_and_bricks_in_two() {
+        let n = 128;
+        let planks = by_name("planks").unwrap();
+        let bricks = by_name("bricks").unwrap();
+        let pl =
+            Periodicity::of_field(&planks.render_field(&[8.0, 0.0, 6.0, 0.1, 0.2], n, n, n), n);
+        let br = Periodicity::of_field(
+            &bricks.render_field(&[8.0, 1.0, 0.1, 0.0, 0.1, 90.0], n, n, n),
+            n,
+        );
+        // Planks across x (0°) repeat every 16 px; along y hardly at all.
+        assert!(
+            (pl.along(0.0).period - 16.0).abs() < 1.0,
+            "{:?}",
+            pl.along(0.0)
+        );
+        assert!(pl.along(90.0).strength < 0.5 * pl.along(0.0).strength);
+        // Square stack-bond bricks repeat both ways.
+        assert!(
+            (br.along(90.0).period - 16.0).abs() < 1.0,
+            "{:?}",
+            br.along(90.0)
+        );
+        assert!(
+            (br.along(0.0).period - 16.0).abs() < 1.0,
+            "{:?}",
+            br.along(0.0)
+        );
+        // So planks sit closer to planks turned slightly than to the grid.
+        let pl2 = Periodicity::of_field(
+            &planks.render_field(&[8.0, 3.0, 5.0, 0.15, 0.3], n, n, n),
+            n,
+        );
+        assert!(
+            pl.distance(&pl2) < pl.distance(&br),
+            "{} {}",
+            pl.distance(&pl2),
+            pl.distance(&br)
+        );
+    }
+
+    #[test]
+    fn flat_and_tiny_images_have_no_period_and_do_not_panic() {
+        let p = Periodicity::of_values(&vec![3.0; 16 * 16], 16);
+        assert!(p.lines.iter().all(|x| x.strength == 0.0));
+        assert!(p.across().is_none());
+        let p = Periodicity::of_values(&[1.0, 2.0, 3.0, 4.0], 2);
+        assert_eq!(p.radial.strength, 0.0);
+        assert_eq!(p.distance(&p), 0.0);
+    }
+}
