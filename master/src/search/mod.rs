@@ -124,11 +124,7 @@ pub trait SearchBackend: Send {
         slack: &[texsyn_engine::Slack],
     ) -> Result<Vec<Vec<Hit>>> {
         let mut lists = self.search_topk(queries, k)?;
-        for (l, s) in lists.iter_mut().zip(slack) {
-            if let Some(best) = l.first().map(|h| h.dist) {
-                l.retain(|h| h.dist <= s.limit(best));
-            }
-        }
+        texsyn_engine::Slack::keep_near_ties(&mut lists, slack);
         Ok(lists)
     }
     /// Releases the level's memory.

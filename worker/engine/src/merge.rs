@@ -29,6 +29,16 @@ impl Slack {
         best.saturating_add(self.absolute)
             .saturating_add(rel as u64)
     }
+
+    /// Drops from each sorted list what lies beyond its slack of its first
+    /// (best) entry: top-k lists become near-tie lists.
+    pub fn keep_near_ties(lists: &mut [Vec<Hit>], slack: &[Slack]) {
+        for (l, s) in lists.iter_mut().zip(slack) {
+            if let Some(best) = l.first().map(|h| h.dist) {
+                l.retain(|h| h.dist <= s.limit(best));
+            }
+        }
+    }
 }
 
 impl Hit {

@@ -477,11 +477,7 @@ impl Engine {
             .map(|(h, s)| s.limit(h.dist).saturating_add(1))
             .collect();
         let mut lists = self.topk_below(space, range, queries, params, k, worst)?;
-        for (l, s) in lists.iter_mut().zip(slack) {
-            if let Some(best) = l.first().map(|h| h.dist) {
-                l.retain(|h| h.dist <= s.limit(best));
-            }
-        }
+        Slack::keep_near_ties(&mut lists, slack);
         Ok(lists)
     }
 
