@@ -9,6 +9,7 @@ use std::time::Instant;
 use anyhow::{ensure, Context, Result};
 
 use super::block_args::{parse_position, ExtendArgs, FillArgs, MethodArg, SynthArgs};
+use super::parallel::DEFAULT_JITTER_ARG;
 use super::{parallel, parse_size, progress, Common, ParallelArgs};
 use crate::block::{self, Config, FillSource, Mode, Stitch, SynthMethod};
 use crate::imaging::{self, ColorImage, DeepImage, PixelFormat};
@@ -232,6 +233,7 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
         return run_parallel(a);
     }
     ensure!(a.jitter.is_none(), "--jitter belongs to --method parallel");
+    ensure!(a.start.is_none(), "--start belongs to --method parallel");
     let mut cfg = Config::try_from(&a.common)?;
     if a.common.stitch.is_none() {
         // `synth`'s own default (ARCHITECTURE §3.12).
@@ -314,12 +316,16 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
     ];
     if let Some((flag, _)) = block_flags.iter().find(|(_, given)| *given) {
         anyhow::bail!(
-            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --seed, --coords and the run flags)"
+            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --seed, --coords and the run flags)"
         );
     }
     let args = ParallelArgs {
         neighbourhood: c.neighbourhood.clone().unwrap_or_else(|| "reduced".into()),
-        jitter: a.jitter.clone().unwrap_or_else(|| "0.4".into()),
+        jitter: a
+            .jitter
+            .clone()
+            .unwrap_or_else(|| DEFAULT_JITTER_ARG.into()),
+        start: a.start.clone().unwrap_or_else(|| "random".into()),
         seed: c.seed,
         run: c.run.clone(),
     };

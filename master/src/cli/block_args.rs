@@ -158,6 +158,10 @@ pub struct SynthArgs {
     /// coarsest first (r1,r2,...).
     #[arg(long)]
     pub jitter: Option<String>,
+    /// --method parallel: the coarsest level's start, random (default) or
+    /// tiled (the paper's §4.1, prone to copying the sample).
+    #[arg(long)]
+    pub start: Option<String>,
     /// Texture mixing: use FILE as the sample of pyramid level L (0 = finest), as L=FILE.
     #[arg(long = "level-sample", value_name = "L=FILE")]
     pub level_samples: Vec<String>,

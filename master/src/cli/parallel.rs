@@ -10,6 +10,7 @@ use clap::Args;
 use super::progress::Bars;
 use super::{parse_size, RunArgs};
 use crate::imaging::{self, ColorImage};
+use crate::parallel::driver::Start;
 use crate::parallel::synth::{self, Neighbourhood, ParallelSettings, Synthesis};
 use crate::parallel::weights;
 
@@ -46,9 +47,14 @@ pub struct ParallelArgs {
     /// Neighbourhood: reduced, half (half-reduced), 5 or 7 (full).
     #[arg(long, alias = "neighborhood", default_value = "reduced")]
     pub neighbourhood: String,
-    /// Jitter strength r in [0, 1], or one per level, coarsest first (r1,r2,...).
-    #[arg(long, default_value = "0.4")]
+    /// Jitter strength r in [0, 1], or one per level, coarsest first
+    /// (r1,r2,...; the last repeats). The paper's is 0.4 everywhere.
+    #[arg(long, default_value = DEFAULT_JITTER_ARG)]
     pub jitter: String,
+    /// The coarsest level's start: random (every offset alike) or tiled
+    /// (the paper's §4.1, S(P) = P mod the exemplar size).
+    #[arg(long, default_value = "random")]
+    pub start: String,
     /// Random seed of the jitter.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -70,6 +76,9 @@ pub struct ReplayArgs {
     #[arg(short, long)]
     pub output: PathBuf,
 }
+
+/// `--jitter`'s default: [`crate::parallel::driver::DEFAULT_JITTER`].
+pub const DEFAULT_JITTER_ARG: &str = "1,0.8,0.6,0.4";
 
 /// Parses the neighbourhood name.
 pub fn parse_neighbourhood(s: &str) -> Result<Neighbourhood> {
@@ -103,6 +112,7 @@ impl ParallelArgs {
         Ok(ParallelSettings {
             neighbourhood: parse_neighbourhood(&self.neighbourhood)?,
             jitter: parse_jitter(&self.jitter)?,
+            start: Start::parse(&self.start)?,
             seed: self.seed,
             budget: self.run.budget(),
             ..ParallelSettings::default()

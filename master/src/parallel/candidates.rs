@@ -1,52 +1,84 @@
 //! k-coherence candidate sets (Tong et al., as Lefebvre and Hoppe use them;
-//! Manke–Wünsche §3): for an exemplar pixel, exemplar pixels whose
-//! appearance is most alike, found once per level by the engine's exact top-k
-//! search, so the correction only compares a handful of candidates per pixel.
+//! Manke–Wünsche §3): for every exemplar pixel, the exemplar pixels whose
+//! appearance is most alike, found once per level by the engine's exact
+//! all-pairs top-k search, so the correction compares only a handful of
+//! candidates per pixel.
 //!
-//! The search goes through [`SearchBackend`], locally or on the cluster. The
-//! engine compares square windows of a plane, so each appearance vector
-//! (quantised to bytes) is laid out as one odd square cell of a plane, 3×3
-//! for up to 9 components, and searched as a window of that size: the
-//! window's distance is the vectors'.
+//! The search goes through [`SearchBackend`], locally or on the cluster, so
+//! the sets are the same bytes on any number of threads or workers. The
+//! engine compares square windows of a plane, so each reference vector, the
+//! first [`SEARCH_DIMS`] appearance components quantised to bytes, is laid
+//! out as one 3×3 cell of a plane and searched as a window of that size: the
+//! window's distance is the vectors'. Spaces this small are searched through
+//! the engine's k-d tree, whose answers are the exhaustive scan's.
 //!
-//! For large exemplars and coarse levels the sets are computed on a grid of
-//! stride `s` (at most [`MAX_GRID`] pixels search each other, and `s ≥ h/2`
-//! on a level of step `h`), and pixel `q` takes the sets
-//! of its grid pixel `g` shifted by `q − g`, the shift k-coherence itself
-//! uses. Pixel `q` is always its own first candidate, and a candidate
-//! within 2 pixels of one already taken is passed over.
+//! Every pixel is a query. The references are every pixel of the level, or
+//! on a coarse level of step `h` the pixels of a grid of stride `h/2`: a
+//! stack level blurred over `h` pixels is a pyramid level repeated `h²`
+//! times, and pixels less than `h/2` apart look alike. Each pixel's set is
+//! itself first (the coherent candidate), then its nearest references in
+//! (distance, index) order, passing over any within the level's near-duplicate
+//! radius of one already taken. Since every pixel has its own list, a
+//! candidate's phase is free: nothing ties it to its query's position modulo
+//! a grid.
 
 use anyhow::{ensure, Result};
+use rayon::prelude::*;
 use texsyn_engine::{Geometry, Plane, QueryBatch, Sample};
 
 use crate::search::{LevelData, SearchBackend};
 
-/// Most grid pixels whose sets are searched on one level.
-pub const MAX_GRID: usize = 4096;
 /// Largest k.
 pub const MAX_K: usize = 16;
+/// Appearance components the sets are searched on (the paper's appearance
+/// space keeps 8; one 3×3 cell holds 9).
+pub const SEARCH_DIMS: usize = 9;
+/// Side of the plane cell one vector occupies.
+const CELL: usize = 3;
+/// Queries per batch handed to the backend.
+const BATCH: usize = 8192;
 
-/// The candidate sets of one exemplar level.
+/// The candidate sets of one exemplar level: `k` per pixel, row by row.
 pub struct Candidates {
     k: usize,
     stride: usize,
     width: usize,
     height: usize,
-    grid_w: usize,
-    /// Per grid pixel, its nearest grid pixels (itself first), best first.
-    lists: Vec<Vec<[u32; 2]>>,
+    table: Vec<[u32; 2]>,
+}
+
+/// How a level's sets are searched: the reference grid's stride and the
+/// near-duplicate radius.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Spacing {
+    /// Stride of the reference grid (1: every pixel).
+    pub stride: usize,
+    /// A candidate within this Chebyshev distance (wrapping) of one already
+    /// taken is passed over.
+    pub radius: u32,
+}
+
+impl Spacing {
+    /// The spacing of the stack level of step `h`: references `h/2` apart
+    /// (every pixel on the two finest levels), near-duplicates within
+    /// `max(2, h)` pixels.
+    pub fn of_step(h: usize) -> Self {
+        Self {
+            stride: 1,
+            radius: (h / 2).max(2) as u32,
+        }
+    }
 }
 
 impl Candidates {
     /// Searches the sets of a `width`×`height` level whose appearance vectors
     /// (`dims` each, row by row) are `appearance`. `level` names the level to
-    /// the backend. The grid stride is at least `min_stride`: on a stack
-    /// level blurred over `h` pixels, pixels less than `h/2` apart look
-    /// alike, so a coarse level needs few grid pixels.
+    /// the backend.
+    #[allow(clippy::too_many_arguments)]
     pub fn search(
         appearance: &[f32],
         (width, height): (usize, usize),
-        min_stride: usize,
+        spacing: Spacing,
         dims: usize,
         k: usize,
         level: usize,
@@ -54,53 +86,47 @@ impl Candidates {
     ) -> Result<Self> {
         ensure!((1..=MAX_K).contains(&k), "k must be in 1..={MAX_K}");
         ensure!(appearance.len() == width * height * dims, "appearance size");
-        let stride = (((width * height) as f64 / MAX_GRID as f64).sqrt().ceil() as usize)
-            .max(min_stride)
-            .clamp(1, width.min(height));
+        let stride = spacing.stride.clamp(1, width.min(height));
         let (grid_w, grid_h) = (width.div_ceil(stride), height.div_ceil(stride));
-        // Cells: the smallest odd square that holds the vector.
-        let cell = {
-            let c = (dims as f64).sqrt().ceil() as usize;
-            c | 1
-        };
+        let used = dims.min(SEARCH_DIMS);
         let (lo, hi) = appearance
-            .iter()
+            .chunks_exact(dims)
+            .flat_map(|v| &v[..used])
             .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
         let scale = if hi > lo { 255.0 / (hi - lo) } else { 0.0 };
-        let quantise = |v: f32| ((v - lo) * scale).round().clamp(0.0, 255.0) as u8;
-        // Cells sit `cell + 1` apart with a line of undefined pixels between
+        let cell_of = |i: usize| -> [u8; CELL * CELL] {
+            let mut c = [0u8; CELL * CELL];
+            for (slot, &a) in c.iter_mut().zip(&appearance[i * dims..i * dims + used]) {
+                *slot = ((a - lo) * scale).round().clamp(0.0, 255.0) as u8;
+            }
+            c
+        };
+        // Cells sit `CELL + 1` apart with a line of undefined pixels between
         // them, so the only windows clear of undefined pixels, the reference
         // positions a worker derives from the plane, are the cells.
-        let pitch = cell + 1;
+        let pitch = CELL + 1;
         let (pw, ph) = (grid_w * pitch, grid_h * pitch);
         let mut pixels = vec![0u8; pw * ph];
         let mut defined = vec![0u8; pw * ph];
-        let mut cells = Vec::with_capacity(grid_w * grid_h);
         for gy in 0..grid_h {
             for gx in 0..grid_w {
-                let i = (gy * stride * width + gx * stride) * dims;
-                let v = &appearance[i..i + dims];
-                let mut c = vec![0u8; cell * cell];
-                for (slot, &a) in c.iter_mut().zip(v) {
-                    *slot = quantise(a);
-                }
-                for r in 0..cell {
+                let c = cell_of(gy * stride * width + gx * stride);
+                for r in 0..CELL {
                     let at = (gy * pitch + r) * pw + gx * pitch;
-                    pixels[at..at + cell].copy_from_slice(&c[r * cell..(r + 1) * cell]);
-                    defined[at..at + cell].fill(1);
+                    pixels[at..at + CELL].copy_from_slice(&c[r * CELL..(r + 1) * CELL]);
+                    defined[at..at + CELL].fill(1);
                 }
-                cells.push(c);
             }
         }
-        let geometry = Geometry::new(cell, 0)?;
+        let geometry = Geometry::new(CELL, 0)?;
         let fine = Plane::new(pw, ph, &pixels, Some(&defined))?;
         let sample = Sample { fine, parent: None };
         let positions = texsyn_engine::plane::reference_positions(&sample, &geometry)?;
         // Row by row, so reference g is grid pixel (g mod grid_w, g / grid_w).
         ensure!(
-            positions.len() == cells.len(),
+            positions.len() == grid_w * grid_h,
             "{} cells gave {} reference windows",
-            cells.len(),
+            grid_w * grid_h,
             positions.len()
         );
         backend.load_level(&LevelData::single_plane(
@@ -109,58 +135,80 @@ impl Candidates {
             geometry,
             fine,
             &positions,
-            cells.len() as u64,
+            (grid_w * grid_h) as u64,
         )?)?;
-        let extra = (4 * k + 4).min(cells.len());
-        let mut lists = Vec::with_capacity(cells.len());
-        for chunk in cells.chunks(2048) {
+        // Enough neighbours that the near-duplicates passed over leave k.
+        let extra = (4 * k + 8).min(grid_w * grid_h);
+        let radius = spacing.radius;
+        // Pixels with the same quantised vector have the same neighbours
+        // (on a blurred level, many): each distinct vector is searched once,
+        // in the order first met.
+        let n = width * height;
+        let mut distinct: std::collections::HashMap<[u8; CELL * CELL], u32> =
+            std::collections::HashMap::new();
+        let mut vectors: Vec<[u8; CELL * CELL]> = Vec::new();
+        let of_pixel: Vec<u32> = (0..n)
+            .map(|i| {
+                let c = cell_of(i);
+                *distinct.entry(c).or_insert_with(|| {
+                    vectors.push(c);
+                    (vectors.len() - 1) as u32
+                })
+            })
+            .collect();
+        drop(distinct);
+        let mut lists: Vec<Vec<u32>> = Vec::with_capacity(vectors.len());
+        for chunk in vectors.chunks(BATCH) {
             let mut batch = QueryBatch::new(geometry.layout());
             for c in chunk {
                 batch.push_full(c)?;
             }
             for hits in backend.search_topk(&batch, extra)? {
-                lists.push(
-                    hits.iter()
-                        .map(|h| {
-                            let g = h.index as usize;
-                            [
-                                ((g % grid_w) * stride) as u32,
-                                ((g / grid_w) * stride) as u32,
-                            ]
-                        })
-                        .collect(),
-                );
+                lists.push(hits.iter().map(|h| h.index as u32).collect());
             }
         }
+        let short = lists.iter().filter(|l| l.len() < k).count();
+        tracing::debug!(
+            short,
+            pixels = n,
+            distinct = vectors.len(),
+            references = grid_w * grid_h,
+            "k-coherence queries"
+        );
+        let size = (width as u32, height as u32);
+        let table: Vec<[u32; 2]> = (0..n)
+            .into_par_iter()
+            .flat_map_iter(|i| {
+                let q = [(i % width) as u32, (i / width) as u32];
+                let refs = lists[of_pixel[i] as usize].iter().map(|&g| {
+                    let g = g as usize;
+                    [
+                        ((g % grid_w) * stride) as u32,
+                        ((g / grid_w) * stride) as u32,
+                    ]
+                });
+                set_of(q, refs, k, radius, size)
+            })
+            .collect();
         backend.end_level();
         Ok(Self {
             k,
             stride,
             width,
             height,
-            grid_w,
-            lists,
+            table,
         })
     }
 
-    /// Grid stride of the sets (1 = every pixel searched).
+    /// Stride of the reference grid (1 = every pixel a reference).
     pub fn stride(&self) -> usize {
         self.stride
     }
 
     /// Every pixel's candidates, row by row, `k` slots each (a short set
     /// repeats its first entry, which changes no choice).
-    pub fn table(&self) -> Vec<[u32; 2]> {
-        let mut out = Vec::with_capacity(self.width * self.height * self.k);
-        let mut list = Vec::with_capacity(self.k);
-        for y in 0..self.height as u32 {
-            for x in 0..self.width as u32 {
-                self.of([x, y], &mut list);
-                out.extend_from_slice(&list);
-                out.extend(std::iter::repeat_n(list[0], self.k - list.len()));
-            }
-        }
-        out
+    pub fn table(self) -> Vec<[u32; 2]> {
+        self.table
     }
 
     /// k of the sets.
@@ -168,76 +216,139 @@ impl Candidates {
         self.k
     }
 
-    /// The candidates of pixel `q` into `out`: `q` first, then its grid
-    /// pixel's list shifted by `q − g`, near-duplicates passed over; `k` at
-    /// most (fewer when the list runs out).
-    pub fn of(&self, q: [u32; 2], out: &mut Vec<[u32; 2]>) {
-        out.clear();
-        out.push(q);
-        let s = self.stride as u32;
-        let g = [q[0] / s * s, q[1] / s * s];
-        let d = [q[0] - g[0], q[1] - g[1]];
-        let list = &self.lists[(g[1] / s) as usize * self.grid_w + (g[0] / s) as usize];
-        for c in list {
-            if out.len() == self.k {
-                break;
-            }
-            let c = [
-                (c[0] + d[0]) % self.width as u32,
-                (c[1] + d[1]) % self.height as u32,
-            ];
-            if out
-                .iter()
-                .all(|o| o[0].abs_diff(c[0]).max(o[1].abs_diff(c[1])) > 2)
-            {
-                out.push(c);
-            }
+    /// The candidates of pixel `q`.
+    pub fn of(&self, q: [u32; 2]) -> &[[u32; 2]] {
+        let i = (q[1] as usize * self.width + q[0] as usize) * self.k;
+        &self.table[i..i + self.k]
+    }
+
+    /// Size of the level.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+}
+
+/// Chebyshev distance between two pixels of a `size` torus.
+pub fn torus_distance(a: [u32; 2], b: [u32; 2], size: (u32, u32)) -> u32 {
+    let axis = |p: u32, q: u32, n: u32| {
+        let d = p.abs_diff(q);
+        d.min(n - d)
+    };
+    axis(a[0], b[0], size.0).max(axis(a[1], b[1], size.1))
+}
+
+/// The set of pixel `q` from its references in order: `q` first, then each
+/// reference farther than `radius` from all taken, `k` in all; a short set
+/// is filled up with `q`.
+fn set_of(
+    q: [u32; 2],
+    refs: impl Iterator<Item = [u32; 2]>,
+    k: usize,
+    radius: u32,
+    size: (u32, u32),
+) -> Vec<[u32; 2]> {
+    let mut out = Vec::with_capacity(k);
+    out.push(q);
+    for c in refs {
+        if out.len() == k {
+            break;
+        }
+        if out.iter().all(|&o| torus_distance(o, c, size) > radius) {
+            out.push(c);
         }
     }
+    out.resize(k, q);
+    out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::search::LocalSearch;
+    use proptest::prelude::*;
     use texsyn_engine::Engine;
 
-    /// The sets against a brute-force scan of the quantised vectors.
-    #[test]
-    fn the_sets_are_the_exact_nearest_vectors() {
-        let (w, h, dims) = (40, 30, 8);
-        let mut s = 12345u32;
-        let app: Vec<f32> = (0..w * h * dims)
+    fn random_appearance(n: usize, seed: u32) -> Vec<f32> {
+        let mut s = seed;
+        (0..n)
             .map(|_| {
                 s = s.wrapping_mul(1_103_515_245).wrapping_add(12345);
-                (s >> 16) as f32 / 65536.0 * 10.0 - 5.0
+                ((s >> 16) % 64) as f32 / 64.0 * 10.0 - 5.0
             })
-            .collect();
-        let mut backend = LocalSearch::new(Engine::default());
-        let c = Candidates::search(&app, (w, h), 1, dims, 4, 0, &mut backend).unwrap();
-        assert_eq!(c.stride(), 1);
-        let (lo, hi) = app
-            .iter()
-            .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
-        let q = |v: f32| ((v - lo) * 255.0 / (hi - lo)).round().clamp(0.0, 255.0) as i64;
-        let dist = |a: usize, b: usize| -> i64 {
-            (0..dims)
-                .map(|d| (q(app[a * dims + d]) - q(app[b * dims + d])).pow(2))
-                .sum()
-        };
-        let mut out = Vec::new();
-        for p in [0usize, 17, 555, 1199] {
-            let mut all: Vec<(i64, usize)> = (0..w * h).map(|r| (dist(p, r), r)).collect();
-            all.sort();
-            let want: Vec<[u32; 2]> = all
-                .iter()
-                .take(20)
-                .map(|&(_, r)| [(r % w) as u32, (r / w) as u32])
+            .collect()
+    }
+
+    /// The sets against a brute-force scan of the quantised vectors over
+    /// every reference of the grid, near-duplicates passed over.
+    #[test]
+    fn the_sets_are_the_exact_nearest_vectors() {
+        let (w, h, dims, k) = (80, 60, 12, 5);
+        let app = random_appearance(w * h * dims, 12345);
+        for spacing in [Spacing::of_step(1), Spacing::of_step(6)] {
+            let mut backend = LocalSearch::new(Engine::default());
+            let c = Candidates::search(&app, (w, h), spacing, dims, k, 0, &mut backend).unwrap();
+            let stride = spacing.stride;
+            assert_eq!(c.stride(), stride);
+            let used: Vec<f32> = app
+                .chunks_exact(dims)
+                .flat_map(|v| v[..SEARCH_DIMS].to_vec())
                 .collect();
-            assert_eq!(c.lists[p], want);
-            c.of([(p % w) as u32, (p / w) as u32], &mut out);
-            assert_eq!(out[0], [(p % w) as u32, (p / w) as u32]);
-            assert!(out.len() <= 4);
+            let (lo, hi) = used
+                .iter()
+                .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+            let q = |v: f32| ((v - lo) * 255.0 / (hi - lo)).round().clamp(0.0, 255.0) as i64;
+            let dist = |a: usize, b: usize| -> i64 {
+                (0..SEARCH_DIMS)
+                    .map(|d| (q(used[a * 9 + d]) - q(used[b * 9 + d])).pow(2))
+                    .sum()
+            };
+            let refs: Vec<usize> = (0..h)
+                .step_by(stride)
+                .flat_map(|y| (0..w).step_by(stride).map(move |x| y * w + x))
+                .collect();
+            for p in [0usize, 17, 555, 1199, 4799] {
+                let mut all: Vec<(i64, usize)> = refs
+                    .iter()
+                    .enumerate()
+                    .map(|(g, &r)| (dist(p, r), g))
+                    .collect();
+                all.sort();
+                let pos = [(p % w) as u32, (p / w) as u32];
+                let want = set_of(
+                    pos,
+                    all.iter().take(4 * k + 8).map(|&(_, g)| {
+                        let r = refs[g];
+                        [(r % w) as u32, (r / w) as u32]
+                    }),
+                    k,
+                    spacing.radius,
+                    (w as u32, h as u32),
+                );
+                assert_eq!(c.of(pos), &want[..]);
+                assert_eq!(c.of(pos)[0], pos);
+            }
+        }
+    }
+
+    proptest! {
+        /// A set starts with its pixel, and any two distinct entries lie
+        /// farther apart than the radius.
+        #[test]
+        fn sets_keep_their_entries_apart(
+            refs in proptest::collection::vec((0u32..40, 0u32..30), 0..60),
+            k in 1usize..=MAX_K,
+            radius in 0u32..6,
+            q in (0u32..40, 0u32..30),
+        ) {
+            let q = [q.0, q.1];
+            let set = set_of(q, refs.iter().map(|&(x, y)| [x, y]), k, radius, (40, 30));
+            prop_assert_eq!(set.len(), k);
+            prop_assert_eq!(set[0], q);
+            for (i, a) in set.iter().enumerate() {
+                for b in &set[i + 1..] {
+                    prop_assert!(a == b || torus_distance(*a, *b, (40, 30)) > radius);
+                }
+            }
         }
     }
 }

@@ -41,6 +41,27 @@ impl CoordMap {
         }
     }
 
+    /// A random start: each pixel an exemplar pixel drawn from a hash of its
+    /// position and `seed`, uniform over the exemplar, so no offset between
+    /// output and exemplar is favoured (the tiled start of §4.1 gives every
+    /// pixel the offset 0, which coherent corrections keep: a copy of the
+    /// exemplar, every offset a multiple of the coarsest step).
+    pub fn random(width: usize, height: usize, exemplar: (usize, usize), seed: u64) -> Self {
+        let coords = (0..height)
+            .flat_map(|y| (0..width).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                let u = position_hash([x as i64, y as i64, 0], u32::MAX, seed);
+                let pick = |v: f64, n: usize| (((v + 1.0) / 2.0 * n as f64) as usize).min(n - 1);
+                [pick(u[0], exemplar.0) as u32, pick(u[1], exemplar.1) as u32]
+            })
+            .collect();
+        Self {
+            width,
+            height,
+            coords,
+        }
+    }
+
     /// Coordinate upsampling: each pixel's four children take its coordinate
     /// plus `h·Δ`, `Δ ∈ {0, 1}²`, wrapped into the exemplar; the child level is
     /// `2w × 2h` cropped to `(width, height)`.

@@ -8,7 +8,7 @@ use anyhow::{ensure, Result};
 use rayon::prelude::*;
 
 use super::appearance::Pca;
-use super::candidates::Candidates;
+use super::candidates::{Candidates, Spacing};
 use super::exemplar::ExemplarLevel;
 use super::neighbourhood::Neighbourhood;
 use crate::imaging::ColorImage;
@@ -22,6 +22,8 @@ pub struct ParallelSettings {
     /// Jitter strength `r_i` per level, coarsest first (the last value
     /// repeats).
     pub jitter: Vec<f64>,
+    /// The coarsest level's coordinates.
+    pub start: Start,
     /// Correction passes per level (each of 4 sub-passes).
     pub passes: usize,
     /// k of the k-coherence candidate sets.
@@ -35,11 +37,40 @@ impl Default for ParallelSettings {
     fn default() -> Self {
         Self {
             neighbourhood: Neighbourhood::Reduced,
-            jitter: vec![0.4],
+            jitter: DEFAULT_JITTER.to_vec(),
+            start: Start::Random,
             passes: 2,
             k: 4,
             seed: 1,
             budget: crate::budget::Budget::default(),
+        }
+    }
+}
+
+/// Default jitter strengths per level, coarsest first (the last repeats):
+/// strong where the layout is decided, so no neighbourhood settles into a
+/// copy of the exemplar, and light at the fine levels, whose corrections
+/// only refine. The paper's single value is `--jitter 0.4`.
+pub const DEFAULT_JITTER: [f64; 4] = [1.0, 0.8, 0.6, 0.4];
+
+/// How the coarsest level's coordinates start.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Start {
+    /// §4.1: `S(P) = P mod s_e`, the exemplar tiled, every offset 0.
+    Tiled,
+    /// Each pixel a hashed exemplar pixel: every offset equally likely.
+    Random,
+}
+
+impl Start {
+    /// Parses `tiled` or `random`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "tiled" | "tile" => Ok(Self::Tiled),
+            "random" => Ok(Self::Random),
+            _ => anyhow::bail!(
+                "--start '{s}' is not one of random (the default) or tiled (the paper's §4.1)"
+            ),
         }
     }
 }
@@ -114,7 +145,7 @@ impl LevelExemplars {
             let c = Candidates::search(
                 &level_ex.appearance,
                 (level_ex.width, level_ex.height),
-                h / 2,
+                Spacing::of_step(h),
                 level_ex.dims,
                 k,
                 level * exemplars.len() + e,

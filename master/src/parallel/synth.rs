@@ -9,7 +9,9 @@ use rayon::prelude::*;
 
 use super::appearance::Pca;
 use super::coords::CoordMap;
-use super::driver::{blend, check_exemplar, exemplar_seed, run_levels, Lattice, LevelExemplars};
+use super::driver::{
+    blend, check_exemplar, exemplar_seed, run_levels, Lattice, LevelExemplars, Start,
+};
 use super::exemplar::ExemplarLevel;
 use crate::imaging::ColorImage;
 use crate::progress::Progress;
@@ -91,6 +93,7 @@ pub fn morph(
         width,
         height,
         seed: s.seed,
+        start: s.start,
         maps: vec![None; exemplars.len()],
         level: None,
         blend: Vec::new(),
@@ -156,6 +159,7 @@ struct Plane<'a> {
     width: usize,
     height: usize,
     seed: u64,
+    start: Start,
     /// Every exemplar's coordinates of the last finished level.
     maps: Vec<Option<CoordMap>>,
     /// The level being corrected, and its weight maps.
@@ -177,7 +181,10 @@ impl Lattice for Plane<'_> {
         for (j, e) in self.exemplars.iter().enumerate() {
             let dims = (e.width, e.height);
             let mut map = match self.maps[j].take() {
-                None => CoordMap::initial(lw, lh, dims, h as u32),
+                None => match self.start {
+                    Start::Tiled => CoordMap::initial(lw, lh, dims, h as u32),
+                    Start::Random => CoordMap::random(lw, lh, dims, exemplar_seed(self.seed, j)),
+                },
                 Some(c) => c.upsample(lw, lh, dims, h as u32),
             };
             map.jitter(dims, h as u32, r, level as u32, exemplar_seed(self.seed, j));
@@ -403,5 +410,47 @@ mod tests {
                 assert_eq!(a.image.get(x, y), ex.get(c[0] as usize, c[1] as usize));
             }
         }
+    }
+
+    /// The largest share of pixels whose offset (coordinate − position)
+    /// falls in one class modulo `s`, as a multiple of the uniform share.
+    fn phase_peak(c: &CoordMap, s: u32) -> f64 {
+        let mut bins = vec![0usize; (s * s) as usize];
+        for y in 0..c.height {
+            for x in 0..c.width {
+                let [cx, cy] = c.get(x, y);
+                let ox = (i64::from(cx) - x as i64).rem_euclid(i64::from(s));
+                let oy = (i64::from(cy) - y as i64).rem_euclid(i64::from(s));
+                bins[(oy * i64::from(s) + ox) as usize] += 1;
+            }
+        }
+        let peak = *bins.iter().max().unwrap() as f64;
+        peak / (c.width * c.height) as f64 * f64::from(s * s)
+    }
+
+    /// No phase lock: over a large output the offsets between output and
+    /// exemplar take every class modulo 4 alike (within 2× of uniform),
+    /// where the tiled start of §4.1 piles them up on one class.
+    #[test]
+    fn offsets_have_no_preferred_phase() {
+        let ex = texture("tiles_color_256.png");
+        let run = |start| {
+            let s = ParallelSettings {
+                start,
+                ..ParallelSettings::default()
+            };
+            let mut b = crate::search::LocalSearch::new(texsyn_engine::Engine::default());
+            synthesize(&ex, 768, 768, &s, &mut b, &crate::progress::Silent).unwrap()
+        };
+        let random = phase_peak(&run(Start::Random).coords[0], 4);
+        assert!(
+            random < 2.0,
+            "offset classes mod 4 peak at {random:.2}× uniform"
+        );
+        let tiled = phase_peak(&run(Start::Tiled).coords[0], 4);
+        assert!(
+            tiled > random,
+            "tiled start {tiled:.2} vs random {random:.2}"
+        );
     }
 }

@@ -10,6 +10,7 @@ pub mod batch;
 pub mod budget;
 pub mod calibrate;
 pub mod error;
+pub mod kdtree;
 pub mod kernel;
 pub mod layout;
 pub mod lbg;

@@ -21,10 +21,15 @@ use rayon::prelude::*;
 
 use crate::batch::QueryBatch;
 use crate::error::{EngineError, Result};
+use crate::kdtree::KdTree;
 use crate::kernel::{distance, Kernel, Params, PruneStats, Scan, Sink};
 use crate::merge::{merge_best, merge_topk, Hit, Slack};
 use crate::space::VectorSpace;
 use crate::window::Sweep;
+
+/// Fewest queries in a top-k batch for which the k-d tree is used (and
+/// built, on first use).
+const TREE_MIN_QUERIES: usize = 64;
 
 /// Thread time spent in search tasks by this process, in nanoseconds.
 static BUSY_NANOS: AtomicU64 = AtomicU64::new(0);
@@ -481,6 +486,28 @@ impl Engine {
         Ok(lists)
     }
 
+    /// The space's k-d tree when it can answer a top-k search of `queries`
+    /// (pruning on, every component of every query known, a large enough
+    /// batch for the tree to pay; [`crate::kdtree`]). Its answers are the
+    /// scan's, so the choice changes only the time.
+    fn tree_for<'a>(&self, space: &'a VectorSpace, queries: &QueryBatch) -> Option<&'a KdTree> {
+        if !self.prune || queries.len() < TREE_MIN_QUERIES || !KdTree::applies(&space.layout()) {
+            return None;
+        }
+        let layout = space.layout();
+        let full = (0..queries.len()).all(|q| {
+            let m = queries.mask(q);
+            m[..layout.hi_len].iter().all(|&b| b != 0)
+                && m[layout.hi_pad..layout.hi_pad + layout.lo_len]
+                    .iter()
+                    .all(|&b| b != 0)
+        });
+        if !full {
+            return None;
+        }
+        space.kd_tree()
+    }
+
     /// The `k` best references per query with a distance below `worst[q]`.
     fn topk_below(
         &self,
@@ -496,6 +523,11 @@ impl Engine {
             return Err(EngineError::Parameter("top-k needs k ≥ 1".into()));
         }
         let nq = queries.len();
+        if let Some(tree) = self.tree_for(space, queries) {
+            let _busy = BusyTimer::start();
+            let qs: Vec<&[u8]> = (0..nq).map(|q| queries.values(q)).collect();
+            return Ok(tree.search_topk(&qs, params, range, k, &worst));
+        }
         let parts: Vec<Vec<Vec<Hit>>> = self
             .chunks(&range)
             .into_par_iter()

@@ -2,6 +2,7 @@
 //! scalar reference, pruning, storage and LBG.
 
 mod engine;
+mod kdtree;
 mod lbg;
 mod pruning;
 mod storage;

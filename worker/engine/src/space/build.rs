@@ -97,6 +97,7 @@ impl VectorSpace {
             positions: all.clone(),
             keys: OnceLock::new(),
             key_plane: OnceLock::new(),
+            tree: OnceLock::new(),
         })
     }
 
@@ -128,6 +129,7 @@ impl VectorSpace {
             positions: Positions::new(),
             keys: OnceLock::new(),
             key_plane: OnceLock::new(),
+            tree: OnceLock::new(),
         })
     }
 }

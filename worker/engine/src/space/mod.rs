@@ -17,6 +17,7 @@ use std::ops::Range;
 use std::sync::OnceLock;
 
 use crate::error::{EngineError, Result};
+use crate::kdtree::KdTree;
 use crate::kernel::{Params, PruneStats};
 use crate::layout::{Layout, SLACK};
 use crate::merge::Hit;
@@ -75,6 +76,9 @@ pub struct VectorSpace {
     keys: OnceLock<Option<KeyIndex>>,
     /// The keys of a plane-backed space, built on its first windowed search.
     key_plane: OnceLock<Option<KeyPlane>>,
+    /// The k-d tree of a low-dimensional space, built on its first large
+    /// top-k search.
+    tree: OnceLock<Option<KdTree>>,
 }
 
 /// The value of `cell`, built by `build` if it is empty. Unlike
@@ -184,10 +188,16 @@ impl VectorSpace {
                 .get()
                 .and_then(Option::as_ref)
                 .map_or(0, KeyPlane::bytes);
-        keys + match &self.data {
-            Data::Dense(_) => (self.bytes() + SLACK) as u64 + self.positions.bytes(),
-            Data::Planes(src) => src.bytes() + self.positions.bytes(),
-        }
+        let tree = self
+            .tree
+            .get()
+            .and_then(Option::as_ref)
+            .map_or(0, KdTree::bytes);
+        keys + tree
+            + match &self.data {
+                Data::Dense(_) => (self.bytes() + SLACK) as u64 + self.positions.bytes(),
+                Data::Planes(src) => src.bytes() + self.positions.bytes(),
+            }
     }
 
     /// The vectors in key order for windowed search, built on first use;
@@ -213,6 +223,26 @@ impl VectorSpace {
             let p = src.parent.as_ref()?;
             let pixels = &p.pixels[..p.pixels.len() - PIECE];
             KeyPlane::build(pixels, p.width, p.row0, src.geometry.m)
+        })
+        .as_ref()
+    }
+
+    /// The k-d tree of the space, built on first use; `None` when its
+    /// vectors have too many components or it holds too few vectors.
+    pub(crate) fn kd_tree(&self) -> Option<&KdTree> {
+        if !KdTree::applies(&self.layout) || self.len < crate::kdtree::MIN_VECTORS {
+            return None;
+        }
+        once(&self.tree, || {
+            let dims = self.layout.dims();
+            let mut raw = Vec::with_capacity(self.len * dims);
+            let s = self.layout.stride();
+            self.for_each_block(self.start..self.end(), |bytes, count, _| {
+                for v in bytes[..count * s].chunks_exact(s) {
+                    self.layout.unpad_into(v, &mut raw);
+                }
+            });
+            Some(KdTree::build(&self.layout, self.start, raw, self.len))
         })
         .as_ref()
     }

@@ -1,0 +1,284 @@
+//! An exact k-d tree over the vectors of a low-dimensional space
+//! (ARCHITECTURE §3.5): the index behind top-k searches of spaces whose
+//! vectors have at most [`MAX_DIMS`] components, such as the appearance
+//! vectors of the k-coherence sets (Manke–Wünsche §3). Scanning every vector
+//! for every query costs `n²` on an all-pairs search; the tree visits only the
+//! cells whose lower bound can still beat a query's k-th best, so the answer
+//! is the scan's, bit for bit: the same integer distances, the same
+//! (distance, index) order, the same `worst` cut.
+//!
+//! Each inner node splits its vectors at the median of its widest component
+//! (left: values ≤ the split, right: values ≥ it). A cell's lower bound is
+//! kept incrementally (Arya and Mount): the sum over components of the
+//! weighted distance from the query to the cell's slab in that component.
+
+use rayon::prelude::*;
+
+use crate::kernel::Params;
+use crate::layout::{Layout, Metric};
+use crate::merge::Hit;
+
+/// Most components a space may have for the tree to serve it; above this a
+/// k-d tree prunes little and the kernels' scan is faster.
+pub const MAX_DIMS: usize = 16;
+/// Vectors per leaf at most.
+const LEAF: usize = 12;
+/// Vectors below which no tree is built (the scan is as fast).
+pub const MIN_VECTORS: usize = 512;
+
+/// One node: a leaf (`left == NONE`) holding `points[lo..hi]`, or a split.
+#[derive(Debug, Clone, Copy)]
+struct Node {
+    lo: u32,
+    hi: u32,
+    dim: u8,
+    split: u8,
+    left: u32,
+    right: u32,
+}
+
+const NONE: u32 = u32::MAX;
+
+/// The tree: the unpadded vectors in tree order, their global indices and
+/// the nodes (the root is node 0).
+#[derive(Debug, Clone)]
+pub(crate) struct KdTree {
+    dims: usize,
+    /// Whether component `d` belongs to the hi part (else the lo part).
+    hi_part: Vec<bool>,
+    /// Padded offset of component `d` in a query.
+    offset: Vec<usize>,
+    points: Vec<u8>,
+    index: Vec<u64>,
+    nodes: Vec<Node>,
+}
+
+impl KdTree {
+    /// Whether a tree can serve searches of this layout.
+    pub(crate) fn applies(layout: &Layout) -> bool {
+        (1..=MAX_DIMS).contains(&layout.dims())
+    }
+
+    /// Builds the tree of `count` vectors given unpadded (`layout.dims()`
+    /// bytes each) with global indices `start..start + count`.
+    pub(crate) fn build(layout: &Layout, start: u64, raw: Vec<u8>, count: usize) -> Self {
+        let dims = layout.dims();
+        debug_assert_eq!(raw.len(), dims * count);
+        let offset: Vec<usize> = (0..layout.hi_len)
+            .chain(layout.hi_pad..layout.hi_pad + layout.lo_len)
+            .collect();
+        let hi_part = (0..dims).map(|d| d < layout.hi_len).collect();
+        let mut order: Vec<u32> = (0..count as u32).collect();
+        let mut nodes = Vec::with_capacity(2 * count / LEAF + 1);
+        split(&raw, dims, &mut order, 0, &mut nodes);
+        let mut points = Vec::with_capacity(raw.len());
+        for &i in &order {
+            let i = i as usize;
+            points.extend_from_slice(&raw[i * dims..(i + 1) * dims]);
+        }
+        let index = order.iter().map(|&i| start + u64::from(i)).collect();
+        Self {
+            dims,
+            hi_part,
+            offset,
+            points,
+            index,
+            nodes,
+        }
+    }
+
+    /// Bytes held.
+    pub(crate) fn bytes(&self) -> u64 {
+        (self.points.len() + self.index.len() * 8 + self.nodes.len() * size_of::<Node>()) as u64
+    }
+
+    /// The `k` best vectors with an index in `range` and a distance below
+    /// `worst[q]`, per query (padded values; full masks), sorted by
+    /// (distance, index): what the scan answers.
+    pub(crate) fn search_topk(
+        &self,
+        queries: &[&[u8]],
+        params: &Params,
+        range: std::ops::Range<u64>,
+        k: usize,
+        worst: &[u64],
+    ) -> Vec<Vec<Hit>> {
+        let weight: Vec<u64> = self
+            .hi_part
+            .iter()
+            .map(|&hi| {
+                u64::from(if hi {
+                    params.weights.hi
+                } else {
+                    params.weights.lo
+                })
+            })
+            .collect();
+        queries
+            .par_iter()
+            .zip(worst)
+            .map_init(
+                || vec![0u64; self.dims],
+                |off, (q, &worst)| {
+                    let q: Vec<u8> = self.offset.iter().map(|&o| q[o]).collect();
+                    let mut s = Search {
+                        tree: self,
+                        q: &q,
+                        weight: &weight,
+                        metric: params.metric,
+                        range: range.clone(),
+                        k,
+                        worst,
+                        list: Vec::with_capacity(k + 1),
+                    };
+                    off.fill(0);
+                    s.visit(0, 0, off);
+                    s.list
+                },
+            )
+            .collect()
+    }
+}
+
+/// Splits `order` (indices into `raw`) into the subtree rooted at a new node
+/// and returns that node's number.
+fn split(raw: &[u8], dims: usize, order: &mut [u32], lo: usize, nodes: &mut Vec<Node>) -> u32 {
+    let me = nodes.len() as u32;
+    let hi = lo + order.len();
+    nodes.push(Node {
+        lo: lo as u32,
+        hi: hi as u32,
+        dim: 0,
+        split: 0,
+        left: NONE,
+        right: NONE,
+    });
+    if order.len() <= LEAF {
+        return me;
+    }
+    // The widest component.
+    let mut best = (0u8, 0usize);
+    for d in 0..dims {
+        let (mut a, mut b) = (u8::MAX, 0u8);
+        for &i in order.iter() {
+            let v = raw[i as usize * dims + d];
+            a = a.min(v);
+            b = b.max(v);
+        }
+        let spread = b.saturating_sub(a);
+        if spread > best.0 {
+            best = (spread, d);
+        }
+    }
+    if best.0 == 0 {
+        // Every vector here is the same: one leaf, however many.
+        return me;
+    }
+    let d = best.1;
+    let mid = order.len() / 2;
+    order.select_nth_unstable_by_key(mid, |&i| (raw[i as usize * dims + d], i));
+    let value = raw[order[mid] as usize * dims + d];
+    let (left, right) = order.split_at_mut(mid);
+    let l = split(raw, dims, left, lo, nodes);
+    let r = split(raw, dims, right, lo + mid, nodes);
+    let n = &mut nodes[me as usize];
+    n.dim = d as u8;
+    n.split = value;
+    n.left = l;
+    n.right = r;
+    me
+}
+
+/// One query's search.
+struct Search<'a> {
+    tree: &'a KdTree,
+    q: &'a [u8],
+    weight: &'a [u64],
+    metric: Metric,
+    range: std::ops::Range<u64>,
+    k: usize,
+    worst: u64,
+    /// The best so far, sorted by (distance, index).
+    list: Vec<Hit>,
+}
+
+impl Search<'_> {
+    #[inline(always)]
+    fn term(&self, d: usize, gap: u64) -> u64 {
+        self.weight[d]
+            * match self.metric {
+                Metric::L1 => gap,
+                Metric::L2 => gap * gap,
+            }
+    }
+
+    /// Largest distance a vector may have and still enter the list.
+    #[inline(always)]
+    fn limit(&self) -> u64 {
+        if self.list.len() == self.k {
+            self.list[self.k - 1].dist
+        } else {
+            self.worst.saturating_sub(1)
+        }
+    }
+
+    /// Visits node `n` whose cell lies at least `bound` from the query;
+    /// `off[d]` is the term component `d` adds to that bound.
+    fn visit(&mut self, n: u32, bound: u64, off: &mut [u64]) {
+        let node = self.tree.nodes[n as usize];
+        if node.left == NONE {
+            self.leaf(node.lo as usize..node.hi as usize);
+            return;
+        }
+        let d = node.dim as usize;
+        let (qv, s) = (self.q[d], node.split);
+        let (near, far, gap) = if qv <= s {
+            (node.left, node.right, u64::from(s - qv))
+        } else {
+            (node.right, node.left, u64::from(qv - s))
+        };
+        self.visit(near, bound, off);
+        let old = off[d];
+        let new = self.term(d, gap);
+        let far_bound = bound - old + new;
+        // Equal to the limit may still win on a lower index.
+        if far_bound <= self.limit() {
+            off[d] = new;
+            self.visit(far, far_bound, off);
+            off[d] = old;
+        }
+    }
+
+    fn leaf(&mut self, span: std::ops::Range<usize>) {
+        let dims = self.tree.dims;
+        for p in span {
+            let index = self.tree.index[p];
+            if !self.range.contains(&index) {
+                continue;
+            }
+            let limit = self.limit();
+            let v = &self.tree.points[p * dims..(p + 1) * dims];
+            let mut dist = 0u64;
+            let mut over = false;
+            for (d, (&a, &b)) in v.iter().zip(self.q).enumerate() {
+                dist += self.term(d, u64::from(a.abs_diff(b)));
+                if dist > limit {
+                    over = true;
+                    break;
+                }
+            }
+            if over || dist >= self.worst {
+                continue;
+            }
+            let hit = Hit { index, dist };
+            if self.list.len() == self.k {
+                if hit.key() >= self.list[self.k - 1].key() {
+                    continue;
+                }
+                self.list.pop();
+            }
+            let at = self.list.partition_point(|h| h.key() < hit.key());
+            self.list.insert(at, hit);
+        }
+    }
+}

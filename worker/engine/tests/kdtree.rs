@@ -1,0 +1,64 @@
+//! The k-d tree's top-k (ARCHITECTURE §3.5) equals the unpruned scan: on
+//! random low-dimensional spaces with many ties, L1 and L2, weighted parts,
+//! sub-ranges (as a worker searches its part), bounds and near-ties.
+
+use proptest::prelude::*;
+use texsyn_engine::{Engine, Layout, Metric, Params, QueryBatch, Slack, VectorSpace, Weights};
+
+/// `n` vectors of `dims` components from a small alphabet (so distances tie).
+fn vectors(n: usize, dims: usize, levels: u8, seed: u64) -> Vec<u8> {
+    let mut s = seed | 1;
+    (0..n * dims)
+        .map(|_| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            ((s >> 24) % u64::from(levels)) as u8 * (255 / (levels - 1).max(1))
+        })
+        .collect()
+}
+
+fn batch(layout: Layout, raw: &[u8]) -> QueryBatch {
+    let mut b = QueryBatch::new(layout);
+    for v in raw.chunks_exact(layout.dims()) {
+        b.push_full(v).unwrap();
+    }
+    b
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(12))]
+
+    #[test]
+    fn tree_top_k_is_the_scan_s(
+        hi in 1usize..=9,
+        lo in 0usize..=7,
+        levels in 2u8..=12,
+        l2 in any::<bool>(),
+        (wh, wl) in (1u32..=5, 1u32..=5),
+        k in 1usize..=20,
+        cut in 0usize..2000,
+        seed in any::<u64>(),
+    ) {
+        let layout = Layout::new(hi, lo);
+        let n = 5000;
+        let raw = vectors(n, layout.dims(), levels, seed);
+        let space = VectorSpace::from_unpadded(layout, 0, &raw).unwrap();
+        let queries = batch(layout, &vectors(200, layout.dims(), levels, seed ^ 0xABCD));
+        let params = Params {
+            metric: if l2 { Metric::L2 } else { Metric::L1 },
+            weights: Weights::new(wh, if lo == 0 { 0 } else { wl }).unwrap(),
+        };
+        let tree = Engine::default();
+        let scan = Engine::default().with_pruning(false);
+        for range in [0..n as u64, cut as u64..n as u64 - 500] {
+            let a = tree.search_topk(&space, range.clone(), &queries, &params, k).unwrap();
+            let b = scan.search_topk(&space, range.clone(), &queries, &params, k).unwrap();
+            prop_assert_eq!(&a, &b);
+            let slack = vec![Slack { absolute: 40, per_mille: 100 }; queries.len()];
+            let a = tree.search_near_ties(&space, range.clone(), &queries, &params, k, &slack).unwrap();
+            let b = scan.search_near_ties(&space, range, &queries, &params, k, &slack).unwrap();
+            prop_assert_eq!(a, b);
+        }
+    }
+}
