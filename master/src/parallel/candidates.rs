@@ -26,6 +26,7 @@ use anyhow::{ensure, Result};
 use rayon::prelude::*;
 use texsyn_engine::{Geometry, Plane, QueryBatch, Sample};
 
+use crate::progress::Progress;
 use crate::search::{LevelData, SearchBackend};
 
 /// Largest k.
@@ -83,6 +84,7 @@ impl Candidates {
         k: usize,
         level: usize,
         backend: &mut dyn SearchBackend,
+        progress: &dyn Progress,
     ) -> Result<Self> {
         ensure!((1..=MAX_K).contains(&k), "k must be in 1..={MAX_K}");
         ensure!(appearance.len() == width * height * dims, "appearance size");
@@ -158,6 +160,7 @@ impl Candidates {
             .collect();
         drop(distinct);
         let mut lists: Vec<Vec<u32>> = Vec::with_capacity(vectors.len());
+        progress.start("k-coherence sets", vectors.len() as u64, "pixels");
         for chunk in vectors.chunks(BATCH) {
             let mut batch = QueryBatch::new(geometry.layout());
             for c in chunk {
@@ -166,7 +169,9 @@ impl Candidates {
             for hits in backend.search_topk(&batch, extra)? {
                 lists.push(hits.iter().map(|h| h.index as u32).collect());
             }
+            progress.advance(chunk.len() as u64);
         }
+        progress.finish();
         let short = lists.iter().filter(|l| l.len() < k).count();
         tracing::debug!(
             short,
@@ -286,7 +291,17 @@ mod tests {
         let app = random_appearance(w * h * dims, 12345);
         for spacing in [Spacing::of_step(1), Spacing::of_step(6)] {
             let mut backend = LocalSearch::new(Engine::default());
-            let c = Candidates::search(&app, (w, h), spacing, dims, k, 0, &mut backend).unwrap();
+            let c = Candidates::search(
+                &app,
+                (w, h),
+                spacing,
+                dims,
+                k,
+                0,
+                &mut backend,
+                &crate::progress::Silent,
+            )
+            .unwrap();
             let stride = spacing.stride;
             assert_eq!(c.stride(), stride);
             let used: Vec<f32> = app

@@ -136,6 +136,7 @@ impl LevelExemplars {
         k: usize,
         level: usize,
         backend: &mut dyn SearchBackend,
+        progress: &dyn Progress,
     ) -> Result<Self> {
         let mut ex = Vec::with_capacity(exemplars.len());
         let mut cands = Vec::with_capacity(exemplars.len());
@@ -150,6 +151,7 @@ impl LevelExemplars {
                 k,
                 level * exemplars.len() + e,
                 backend,
+                progress,
             )?;
             if e == 0 {
                 stride = c.stride();
@@ -197,7 +199,7 @@ pub(super) fn run_levels<L: Lattice>(
     for level in 0..levels {
         let h = 1usize << (levels - 1 - level);
         let t = std::time::Instant::now();
-        let ex = LevelExemplars::build(exemplars, h, pca, &points, s.k, level, backend)?;
+        let ex = LevelExemplars::build(exemplars, h, pca, &points, s.k, level, backend, progress)?;
         strides.push(ex.stride);
         let t_exemplars = t.elapsed().as_secs_f64();
         lattice.prepare(level, h, jitter_at(s, level));
