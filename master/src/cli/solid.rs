@@ -41,8 +41,8 @@ pub struct SolidArgs {
     /// Correction passes per level (each of 8 sub-passes).
     #[arg(long, default_value_t = 2)]
     pub passes: usize,
-    /// Strength of the histogram matching that keeps the solid's contrast
-    /// (0: the paper's plain method, which washes out).
+    /// Strength of the histogram matching that keeps the solid's contrast,
+    /// 0 to 1 (1: full; 0: the paper's plain method, which washes out).
     #[arg(long, default_value_t = solid::HISTOGRAM)]
     pub histogram: f32,
     /// Morph the materials along a ramp across x, y or z: material 1 at the

@@ -71,8 +71,8 @@ impl SolidJob {
     pub fn validate(&self) -> Result<()> {
         let (h, passes) = (self.settings.histogram, self.settings.base.passes);
         ensure!(
-            h.is_finite() && (0.0..=100.0).contains(&h),
-            "--histogram {h} must be in [0, 100] (0: the paper's plain method)"
+            h.is_finite() && (0.0..=1.0).contains(&h),
+            "--histogram {h} must be in [0, 1] (1: full matching, 0: the paper's plain method)"
         );
         ensure!(
             (1..=64).contains(&passes),
