@@ -1,5 +1,5 @@
 //! Histogram matching of a solid (after Kopf et al. 2007, "Solid texture
-//! synthesis from 2D exemplars", §4.2, as the cure for the wash-out that
+//! synthesis from 2D exemplars", as the cure for the wash-out that
 //! Manke–Wünsche §6 also report; ARCHITECTURE §11).
 //!
 //! A voxel's value is the weighted blend of its views' exemplar values

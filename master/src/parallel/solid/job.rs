@@ -78,6 +78,12 @@ impl SolidJob {
             (1..=64).contains(&passes),
             "--passes {passes} must be in 1..=64"
         );
+        let k = self.settings.base.k;
+        ensure!(
+            (1..=crate::parallel::candidates::MAX_K).contains(&k),
+            "--k {k} must be in 1..={}",
+            crate::parallel::candidates::MAX_K
+        );
         ensure!(
             self.size.iter().all(|&n| (1..=MAX_EDGE).contains(&n)),
             "every edge of the solid must be in 1..={MAX_EDGE}"
@@ -262,6 +268,7 @@ impl SolidJob {
             "neighbourhood": s.base.neighbourhood.name(),
             "jitter": s.base.jitter,
             "passes": s.base.passes,
+            "k": s.base.k,
             "histogram": s.histogram,
             "seed": s.base.seed,
             "levels": out.levels,

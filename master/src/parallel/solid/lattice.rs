@@ -1,6 +1,6 @@
 //! The volume of a solid synthesis (Manke–Wünsche §5): the [`Lattice`] of
-//! voxels the level loop drives. Coordinates start in each view's plane
-//! (§5.1), upsample by eq. 4 and are corrected in eight sub-passes (§5.3),
+//! voxels the level loop drives. Coordinates start at random (a departure
+//! from §5.1, see [`initial`]), upsample by eq. 4 and are corrected in eight sub-passes (§5.3),
 //! each view against the blend's neighbourhood in its plane (eq. 5), the
 //! blend histogram-matched to the exemplars' appearance after every sub-pass
 //! ([`super::histogram`]).
@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use super::histogram::Matching;
 use super::weights::{downsample3, ViewWeights};
 use super::View;
-use crate::parallel::coords::jitter_offset;
+use crate::parallel::coords::{jitter_offset, position_hash};
 use crate::parallel::driver::{exemplar_seed, Lattice, LevelExemplars};
 use crate::parallel::exemplar::ExemplarLevel;
 use crate::progress::Progress;
@@ -67,7 +67,7 @@ impl Lattice for Volume<'_> {
             .map(|f| f.iter().map(|w| downsample3(w, self.size, h)).collect());
         self.weights = Some(ViewWeights::new(&material_of, volumes));
         let mut coords = if level == 0 {
-            initial(ls, self.views, h)
+            initial(ls, self.views, self.seed)
         } else {
             upsample(&self.coords, self.level_size, ls, self.views, h)
         };
@@ -137,20 +137,30 @@ impl Lattice for Volume<'_> {
     }
 }
 
-/// The coarsest level's start (§5.1): `S(P) = P_{u,v}·h mod s_e` in each
-/// view's plane.
-pub(super) fn initial(ls: [usize; 3], views: &[View], h: usize) -> Vec<[u32; 2]> {
+/// The coarsest level's start: every voxel and view a random exemplar pixel,
+/// drawn by a hash of the voxel, the view and `seed` (a departure from
+/// §5.1). The paper's `S(P) = P_{u,v}·h mod s_e` tiles each view's exemplar
+/// along its plane; with the planes cyclic, any smooth gradient of the
+/// exemplar then adds up, over the three views, to a function of `x + y + z`,
+/// and the solid grows sheets across the (1, 1, 1) diagonal, seen on every
+/// slice as streaks along one diagonal. Random starts have no such order;
+/// the coarsest correction makes them coherent.
+pub(super) fn initial(ls: [usize; 3], views: &[View], seed: u64) -> Vec<[u32; 2]> {
     let n = ls.iter().product::<usize>();
     (0..n)
         .into_par_iter()
         .flat_map_iter(|i| {
-            let p = [i % ls[0], i / ls[0] % ls[1], i / (ls[0] * ls[1])];
-            views.iter().map(move |v| {
-                let [u, w] = v.axis.plane();
-                [
-                    (p[u] * h % v.exemplar.width) as u32,
-                    (p[w] * h % v.exemplar.height) as u32,
-                ]
+            let p = [
+                (i % ls[0]) as i64,
+                (i / ls[0] % ls[1]) as i64,
+                (i / (ls[0] * ls[1])) as i64,
+            ];
+            views.iter().enumerate().map(move |(j, v)| {
+                let r = position_hash(p, u32::MAX, exemplar_seed(seed, j));
+                let at = |u: f64, side: usize| {
+                    (((u + 1.0) / 2.0 * side as f64) as usize).min(side - 1) as u32
+                };
+                [at(r[0], v.exemplar.width), at(r[1], v.exemplar.height)]
             })
         })
         .collect()
