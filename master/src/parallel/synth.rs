@@ -522,6 +522,48 @@ mod tests {
     use crate::parallel::tests::texture;
 
     #[test]
+    fn the_best_colour_shows_whole_pixels_of_one_exemplar_and_both_in_the_middle() {
+        let a = texture("pink_marble_color_128.png");
+        let b = texture("leaves_green_color_161.png");
+        let (w, h) = (96, 48);
+        let maps = crate::parallel::weights::ramp(2, crate::parallel::weights::Axis::X, w, h);
+        let mut backend = crate::search::LocalSearch::new(texsyn_engine::Engine::default());
+        let out = morph(
+            &[&a, &b],
+            &maps,
+            w,
+            h,
+            &ParallelSettings::default(),
+            &mut backend,
+            &crate::progress::Silent,
+        )
+        .unwrap();
+        let mut middle = [0usize; 2];
+        for y in 0..h {
+            for x in 0..w {
+                let px = out.image.get(x, y);
+                let [ca, cb] = [out.coords[0].get(x, y), out.coords[1].get(x, y)];
+                let from_a = px == a.get(ca[0] as usize, ca[1] as usize);
+                let from_b = px == b.get(cb[0] as usize, cb[1] as usize);
+                assert!(from_a || from_b, "({x}, {y}) is a mixture");
+                if x == 0 {
+                    assert!(from_a, "weight 1 of the first exemplar lost at ({x}, {y})");
+                }
+                if x == w - 1 {
+                    assert!(from_b, "weight 1 of the second exemplar lost at ({x}, {y})");
+                }
+                if (w / 3..2 * w / 3).contains(&x) {
+                    middle[usize::from(!from_a)] += 1;
+                }
+            }
+        }
+        assert!(
+            middle.iter().all(|&c| c > w * h / 30),
+            "the middle third is not both: {middle:?}"
+        );
+    }
+
+    #[test]
     fn every_output_pixel_is_its_coordinate_s_exemplar_pixel_and_threads_do_not_matter() {
         let ex = texture("pink_marble_color_128.png");
         let s = ParallelSettings::default();
