@@ -112,6 +112,8 @@ fn a_morph_is_the_weighted_sum_of_its_exemplars_at_their_coordinates() {
         &format!("{},{}", s(&d("wa.png")), s(&d("wb.png"))),
         "--size",
         &format!("{w}x{h}"),
+        "--colour",
+        "weighted",
         "-q",
         "-o",
         s(&d("out.png")),

@@ -369,8 +369,8 @@ fn bad_input_is_refused_with_the_fix_named() {
             "is not none, x, y, z or all",
         ),
         (
-            vec!["--size", "32", "--histogram", "200"],
-            "must be in [0, 100]",
+            vec!["--size", "32", "--histogram", "2"],
+            "must be in [0, 1]",
         ),
     ];
     for (extra, want) in cases {

@@ -27,6 +27,18 @@ pub struct CompareArgs {
     pub wrap: bool,
 }
 
+/// The scores of B against A, with B's contrast and pixel checker against
+/// A's.
+#[derive(serde::Serialize)]
+struct Pair {
+    #[serde(flatten)]
+    scores: compare::Scores,
+    /// Per channel standard deviation of B over A's.
+    contrast: [f64; 3],
+    /// B's [`compare::checker_energy`] over A's.
+    checker: f64,
+}
+
 pub fn run(a: &CompareArgs) -> Result<()> {
     let json = match &a.b {
         None if a.a.is_dir() => {
@@ -52,7 +64,17 @@ pub fn run(a: &CompareArgs) -> Result<()> {
                 }
                 None => None,
             };
-            serde_json::to_string_pretty(&compare::compare_with(&ia, &ib, grid)?)?
+            let scores = compare::compare_with(&ia, &ib, grid)?;
+            let ea = compare::checker_energy(&ia);
+            serde_json::to_string_pretty(&Pair {
+                scores,
+                contrast: compare::contrast_ratio(&ia, &ib),
+                checker: if ea > 0.0 {
+                    compare::checker_energy(&ib) / ea
+                } else {
+                    0.0
+                },
+            })?
         }
     };
     println!("{json}");

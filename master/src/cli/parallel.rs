@@ -11,7 +11,7 @@ use super::progress::Bars;
 use super::{parse_size, RunArgs};
 use crate::imaging::{self, ColorImage};
 use crate::parallel::driver::Start;
-use crate::parallel::synth::{self, Neighbourhood, ParallelSettings, Synthesis};
+use crate::parallel::synth::{self, MorphColour, Neighbourhood, ParallelSettings, Synthesis};
 use crate::parallel::weights;
 
 #[derive(Args, Debug)]
@@ -37,8 +37,23 @@ pub struct MorphArgs {
     /// exemplars FILE_1.png, FILE_2.png...).
     #[arg(long)]
     pub coords: Option<PathBuf>,
+    /// The output colour: best (per pixel the exemplar whose neighbourhood
+    /// fits best for its weight, so the middle of a ramp shows whole
+    /// features of each) or weighted (Σ Wʲ·Eʲ(Sʲ), a double exposure where
+    /// the weights are even).
+    #[arg(long, default_value = "best")]
+    pub colour: String,
     #[command(flatten)]
     pub settings: ParallelArgs,
+}
+
+/// Parses `--colour`.
+fn parse_colour(s: &str) -> Result<MorphColour> {
+    Ok(match s.trim().to_ascii_lowercase().as_str() {
+        "best" => MorphColour::Best,
+        "weighted" => MorphColour::Weighted,
+        _ => anyhow::bail!("--colour '{s}' is not best or weighted"),
+    })
 }
 
 /// The settings of a synthesis on coordinates.
@@ -108,13 +123,14 @@ pub(super) fn parse_jitter(s: &str) -> Result<Vec<f64>> {
 }
 
 impl ParallelArgs {
-    fn settings(&self) -> Result<ParallelSettings> {
+    fn settings(&self, colour: MorphColour) -> Result<ParallelSettings> {
         Ok(ParallelSettings {
             neighbourhood: parse_neighbourhood(&self.neighbourhood)?,
             jitter: parse_jitter(&self.jitter)?,
             start: Start::parse(&self.start)?,
             seed: self.seed,
             budget: self.run.budget(),
+            colour,
             ..ParallelSettings::default()
         })
     }
@@ -126,8 +142,9 @@ impl ParallelArgs {
         exemplars: &[&ColorImage],
         maps: &[Vec<f32>],
         size: (usize, usize),
+        colour: MorphColour,
     ) -> Result<Synthesis> {
-        let settings = self.settings()?;
+        let settings = self.settings(colour)?;
         let pool = self.run.pool()?;
         let largest = exemplars
             .iter()
@@ -173,7 +190,7 @@ pub fn run_synth(
     let sample = deep.search_colour();
     let ones = vec![vec![1.0f32; size.0 * size.1]];
     let t = Instant::now();
-    let out = args.run(&[&sample], &ones, size)?;
+    let out = args.run(&[&sample], &ones, size, MorphColour::default())?;
     let image = deep.rebuild(&out.coords[0].coords, size.0, size.1, None)?;
     imaging::save_image(output, &image)?;
     if let Some(p) = coords {
@@ -186,6 +203,7 @@ pub fn run_synth(
 /// `texsyn morph`.
 pub fn run_morph(a: &MorphArgs) -> Result<()> {
     let size = parse_size(&a.size)?;
+    let colour = parse_colour(&a.colour)?;
     let m = a.exemplars.len();
     let coord_paths: Vec<PathBuf> = match &a.coords {
         None => Vec::new(),
@@ -233,7 +251,7 @@ pub fn run_morph(a: &MorphArgs) -> Result<()> {
     };
     let refs: Vec<&ColorImage> = images.iter().collect();
     let t = Instant::now();
-    let out = a.settings.run(&refs, &maps, size)?;
+    let out = a.settings.run(&refs, &maps, size, colour)?;
     imaging::save_color(&a.output, &out.image)?;
     for (p, c) in coord_paths.iter().zip(&out.coords) {
         imaging::save_coord_map(p, size.0, size.1, &c.coords)?;

@@ -41,8 +41,12 @@ pub struct SolidArgs {
     /// Correction passes per level (each of 8 sub-passes).
     #[arg(long, default_value_t = 2)]
     pub passes: usize,
-    /// Strength of the histogram matching that keeps the solid's contrast
-    /// (0: the paper's plain method, which washes out).
+    /// k of the k-coherence candidate sets (1 to 16): each view of each voxel
+    /// compares 9·k candidates.
+    #[arg(long, default_value_t = solid::K)]
+    pub k: usize,
+    /// Strength of the histogram matching that keeps the solid's contrast,
+    /// 0 to 1 (1: full; 0: the paper's plain method, which washes out).
     #[arg(long, default_value_t = solid::HISTOGRAM)]
     pub histogram: f32,
     /// Morph the materials along a ramp across x, y or z: material 1 at the
@@ -182,8 +186,9 @@ impl TryFrom<&SolidArgs> for SolidJob {
             jitter: parse_jitter(&a.jitter)?,
             seed: a.seed,
             passes: a.passes,
+            k: a.k,
             budget: a.run.budget(),
-            ..ParallelSettings::default()
+            ..SolidSettings::default().base
         };
         let replays = a
             .replay

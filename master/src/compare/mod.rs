@@ -381,6 +381,50 @@ pub fn laplacian_distance(a: &ColorImage, b: &ColorImage) -> Result<f64> {
     Ok(histograms_distance(&ha, &hb))
 }
 
+/// Per channel (R, G, B) standard deviation of B over A's: 1 when B has
+/// A's contrast (a washed-out solid slice is well under 1).
+pub fn contrast_ratio(a: &ColorImage, b: &ColorImage) -> [f64; 3] {
+    let (sa, sb) = (channel_deviations(a), channel_deviations(b));
+    [0, 1, 2].map(|c| if sa[c] > 0.0 { sb[c] / sa[c] } else { 0.0 })
+}
+
+/// Per channel standard deviation.
+pub fn channel_deviations(img: &ColorImage) -> [f64; 3] {
+    let n = img.len().max(1) as f64;
+    let mut sum = [0.0f64; 3];
+    let mut sq = [0.0f64; 3];
+    for p in img.rgb.chunks_exact(3) {
+        for c in 0..3 {
+            let v = f64::from(p[c]);
+            sum[c] += v;
+            sq[c] += v * v;
+        }
+    }
+    [0, 1, 2].map(|c| (sq[c] / n - (sum[c] / n).powi(2)).max(0.0).sqrt())
+}
+
+/// Energy of the pixel checker, the luminance's component at the Nyquist
+/// frequency in both axes: the mean over every 2×2 block (wrapping) of
+/// `(¼ Σ (−1)^(x+y) L)²`, in squared grey levels. A texture that alternates
+/// pixel by pixel has far more of it than one smooth at the pixel scale.
+pub fn checker_energy(img: &ColorImage) -> f64 {
+    let l = luminance(img);
+    let (w, h) = (l.width, l.height);
+    if w < 2 || h < 2 {
+        return 0.0;
+    }
+    let mut e = 0.0f64;
+    for y in 0..h {
+        for x in 0..w {
+            let (x1, y1) = ((x + 1) % w, (y + 1) % h);
+            let c = f64::from(l.get(x, y)) - f64::from(l.get(x1, y)) - f64::from(l.get(x, y1))
+                + f64::from(l.get(x1, y1));
+            e += (c / 4.0).powi(2);
+        }
+    }
+    e / (w * h) as f64
+}
+
 /// Mean over R, G, B of the 1-D earth mover's distance between the two
 /// images' normalised histograms, divided by 255: in [0, 1].
 pub fn colour_distance(a: &ColorImage, b: &ColorImage) -> f64 {

@@ -342,3 +342,26 @@ fn images_past_the_size_cap_are_refused_before_any_measure() {
         assert!(e.contains("4097x4096") && e.contains("crop"), "{e}");
     }
 }
+
+#[test]
+fn a_pixel_checker_has_checker_energy_and_a_flat_or_smooth_image_little() {
+    let (w, h) = (32, 32);
+    let img = |f: &dyn Fn(usize, usize) -> u8| {
+        ColorImage::from_vec(
+            w,
+            h,
+            (0..w * h).flat_map(|i| [f(i % w, i / w); 3]).collect(),
+        )
+    };
+    let checker = img(&|x, y| if (x + y) % 2 == 0 { 100 } else { 140 });
+    let flat = img(&|_, _| 120);
+    let ramp = img(&|x, _| (x * 8) as u8);
+    assert!((super::checker_energy(&checker) - 400.0).abs() < 1e-9);
+    assert_eq!(super::checker_energy(&flat), 0.0);
+    // A ramp wraps once (a step at the edge); it has far less.
+    assert!(super::checker_energy(&ramp) < 0.1 * super::checker_energy(&checker));
+    // Contrast: the checker's deviation is 20 against a half-strength one.
+    let half = img(&|x, y| if (x + y) % 2 == 0 { 110 } else { 130 });
+    let c = super::contrast_ratio(&checker, &half);
+    assert!(c.iter().all(|v| (v - 0.5).abs() < 1e-9), "{c:?}");
+}

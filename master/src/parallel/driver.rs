@@ -31,6 +31,23 @@ pub struct ParallelSettings {
     pub seed: u64,
     /// The memory the run may take: a larger output is refused before any work.
     pub budget: crate::budget::Budget,
+    /// How a morph's output colour is drawn from its exemplars.
+    pub colour: MorphColour,
+}
+
+/// How a morph's output colour is drawn from its exemplars (ARCHITECTURE
+/// §10). One exemplar gives the same colour either way.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum MorphColour {
+    /// Per pixel the colour of one exemplar, the one whose neighbourhood at
+    /// its coordinate fits the blended neighbourhood best for its weight:
+    /// where both exemplars have weight, each region shows one exemplar's
+    /// features whole instead of both at half strength.
+    #[default]
+    Best,
+    /// The weighted sum `Σ Wʲ·Eʲ(Sʲ)` (Manke–Wünsche eq. 2 in colour): a
+    /// double exposure where the weights are even.
+    Weighted,
 }
 
 impl Default for ParallelSettings {
@@ -43,6 +60,7 @@ impl Default for ParallelSettings {
             k: 4,
             seed: 1,
             budget: crate::budget::Budget::default(),
+            colour: MorphColour::default(),
         }
     }
 }

@@ -165,7 +165,7 @@ impl ExemplarLevel {
 
     /// The neighbourhood vector of `q`: from the table, or computed into
     /// `buf`.
-    fn neighbourhood<'a>(
+    pub(super) fn neighbourhood<'a>(
         &'a self,
         q: [u32; 2],
         points: &[Vec<[i32; 2]>],

@@ -17,7 +17,7 @@ use crate::imaging::ColorImage;
 use crate::progress::Progress;
 use crate::search::SearchBackend;
 
-pub use super::driver::ParallelSettings;
+pub use super::driver::{MorphColour, ParallelSettings};
 pub use super::neighbourhood::Neighbourhood;
 
 /// A finished synthesis or morph: the colour and, per exemplar, its
@@ -52,7 +52,7 @@ pub fn synthesize(
 /// Every exemplar has its own coordinate pyramid; neighbourhoods are gathered
 /// from the weighted blend of the exemplars' appearance (eq. 2) and every
 /// exemplar's level takes its best match against that blend (eq. 3). The
-/// output is the weighted colour `Σ Wʲ·Eʲ(Sʲ)`, rounded.
+/// output colour is drawn as `s.colour` says ([`MorphColour`]).
 pub fn morph(
     exemplars: &[&ColorImage],
     weights: &[Vec<f32>],
@@ -97,14 +97,17 @@ pub fn morph(
         maps: vec![None; exemplars.len()],
         level: None,
         blend: Vec::new(),
+        fit: Vec::new(),
     };
     let strides = run_levels(&mut plane, exemplars, &pca, s, backend, progress)?;
-    let coords: Vec<CoordMap> = plane
-        .maps
+    let coords: Vec<CoordMap> = std::mem::take(&mut plane.maps)
         .into_iter()
         .map(|c| c.expect("a level"))
         .collect();
-    let image = blend_colour(exemplars, weights, &coords, width, height);
+    let image = match s.colour {
+        MorphColour::Weighted => blend_colour(exemplars, weights, &coords, width, height),
+        MorphColour::Best => best_colour(exemplars, weights, &coords, &plane.fit, width, height),
+    };
     Ok(Synthesis {
         image,
         coords,
@@ -152,6 +155,97 @@ pub fn blend_colour(
     ColorImage::from_vec(width, height, rgb)
 }
 
+/// Radius of the box that smooths each exemplar's misfit before the choice
+/// of [`best_colour`]: regions, not single pixels, change exemplar.
+const FIT_RADIUS: usize = 2;
+
+/// The colour of [`MorphColour::Best`]: per pixel the colour of exemplar
+/// `j` minimising `fit_j·√((1 − Wʲ)/Wʲ)`, where `fit_j` is its misfit
+/// (`fit`, pixel-major, `m` per pixel: the distance of its neighbourhood at
+/// its coordinate to the blended neighbourhood, eq. 3) box-smoothed over
+/// `2·FIT_RADIUS + 1` pixels and divided by its mean weighted by `Wʲ` (its
+/// typical misfit where it shows, so an exemplar whose distances run larger
+/// is not put at a disadvantage).
+/// Weight 1 always wins and weight 0 never does; at even weights the
+/// better-fitting exemplar does, and the square root of the odds widens the
+/// band where both show. Ties go to the first.
+pub fn best_colour(
+    exemplars: &[&ColorImage],
+    weights: &[Vec<f32>],
+    coords: &[CoordMap],
+    fit: &[f32],
+    width: usize,
+    height: usize,
+) -> ColorImage {
+    let m = exemplars.len();
+    let n = width * height;
+    if fit.len() != n * m {
+        return blend_colour(exemplars, weights, coords, width, height);
+    }
+    let smooth = box_smooth(fit, width, height, m, FIT_RADIUS);
+    let mean: Vec<f32> = (0..m)
+        .map(|j| {
+            let (sum, mass) = (0..n).fold((0.0f64, 0.0f64), |(s, c), i| {
+                let w = f64::from(weights[j][i]);
+                (s + w * f64::from(smooth[i * m + j]), c + w)
+            });
+            if mass > 0.0 && sum > 0.0 {
+                (sum / mass) as f32
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let rgb: Vec<u8> = (0..n)
+        .into_par_iter()
+        .flat_map_iter(|i| {
+            let mut best = (f32::INFINITY, 0usize);
+            for j in 0..m {
+                let w = weights[j][i];
+                if w <= 0.0 {
+                    continue;
+                }
+                let cost = if w >= 1.0 {
+                    f32::NEG_INFINITY
+                } else {
+                    smooth[i * m + j] / mean[j] * ((1.0 - w) / w).sqrt()
+                };
+                if cost < best.0 || best.0 == f32::INFINITY {
+                    best = (cost, j);
+                }
+            }
+            let [x, y] = coords[best.1].coords[i];
+            exemplars[best.1].get(x as usize, y as usize)
+        })
+        .collect();
+    ColorImage::from_vec(width, height, rgb)
+}
+
+/// A wrapping box mean of radius `r` over a `width`×`height` plane of `m`
+/// values per pixel.
+fn box_smooth(v: &[f32], width: usize, height: usize, m: usize, r: usize) -> Vec<f32> {
+    let pass = |src: &[f32], horizontal: bool| -> Vec<f32> {
+        let mut out = vec![0.0f32; src.len()];
+        out.par_chunks_mut(m).enumerate().for_each(|(i, o)| {
+            let (x, y) = (i % width, i / width);
+            for d in 0..=2 * r {
+                let j = if horizontal {
+                    y * width + (x + width * (r + 1) + d - r) % width
+                } else {
+                    ((y + height * (r + 1) + d - r) % height) * width + x
+                };
+                for (a, b) in o.iter_mut().zip(&src[j * m..(j + 1) * m]) {
+                    *a += b;
+                }
+            }
+            let k = (2 * r + 1) as f32;
+            o.iter_mut().for_each(|a| *a /= k);
+        });
+        out
+    };
+    pass(&pass(v, true), false)
+}
+
 /// The plane of a synthesis or morph: every exemplar's coordinate map.
 struct Plane<'a> {
     exemplars: &'a [&'a ColorImage],
@@ -165,6 +259,9 @@ struct Plane<'a> {
     /// The level being corrected, and its weight maps.
     level: Option<(Levels, Vec<Vec<f32>>)>,
     blend: Vec<f32>,
+    /// After the finest level, every exemplar's misfit at every pixel
+    /// (pixel-major) for [`best_colour`].
+    fit: Vec<f32>,
 }
 
 impl Lattice for Plane<'_> {
@@ -214,6 +311,9 @@ impl Lattice for Plane<'_> {
                 );
                 progress.advance(1);
             }
+        }
+        if ex.ex.first().is_some_and(|e| e.h == 1) && self.exemplars.len() > 1 {
+            self.fit = misfit(&lv, &level_weights, &ex.ex, points, &mut self.blend);
         }
         for (slot, map) in self.maps.iter_mut().zip(lv.into_maps()) {
             *slot = Some(map);
@@ -306,6 +406,63 @@ fn blend_appearance(lv: &Levels, weights: &[Vec<f32>], ex: &[ExemplarLevel], ble
         });
 }
 
+/// The blended neighbourhood `N_S(P)` of eq. 2 at pixel `(x, y)`, from the
+/// blend of every pixel (`dims` each), into `want`.
+fn gather(
+    blend: &[f32],
+    (width, height): (usize, usize),
+    dims: usize,
+    points: &[Vec<[i32; 2]>],
+    (x, y): (i64, i64),
+    want: &mut Vec<f32>,
+) {
+    let (w, hh) = (width as i64, height as i64);
+    want.clear();
+    for pt in points {
+        let start = want.len();
+        want.extend(std::iter::repeat_n(0.0f32, dims));
+        let share = 1.0 / pt.len() as f32;
+        for o in pt {
+            let j = (y + i64::from(o[1])).rem_euclid(hh) as usize * width
+                + (x + i64::from(o[0])).rem_euclid(w) as usize;
+            for (a, v) in want[start..]
+                .iter_mut()
+                .zip(&blend[j * dims..(j + 1) * dims])
+            {
+                *a += v * share;
+            }
+        }
+    }
+}
+
+/// Every exemplar's misfit at every pixel (pixel-major, `m` per pixel): the
+/// squared distance of its neighbourhood at its coordinate to the blended
+/// neighbourhood, the quantity eq. 3 minimises.
+fn misfit(
+    lv: &Levels,
+    weights: &[Vec<f32>],
+    ex: &[ExemplarLevel],
+    points: &[Vec<[i32; 2]>],
+    blend: &mut Vec<f32>,
+) -> Vec<f32> {
+    blend_appearance(lv, weights, ex, blend);
+    let blend = &*blend;
+    let (width, m, dims) = (lv.width, lv.m, ex[0].dims);
+    let mut out = vec![0.0f32; lv.width * lv.height * m];
+    out.par_chunks_mut(m).enumerate().for_each_init(
+        || (Vec::new(), Vec::new()),
+        |(want, buf), (i, o)| {
+            let (x, y) = ((i % width) as i64, (i / width) as i64);
+            gather(blend, (width, lv.height), dims, points, (x, y), want);
+            for (e, (exl, f)) in ex.iter().zip(o.iter_mut()).enumerate() {
+                let have = exl.neighbourhood(lv.coords[i * m + e], points, buf);
+                *f = want.iter().zip(have).map(|(a, b)| (a - b) * (a - b)).sum();
+            }
+        },
+    );
+    out
+}
+
 /// One correction sub-pass (eq. 2 and 3): the pixels with
 /// `(x % 2, y % 2) == sub` take, in every exemplar's level, the k-coherence
 /// candidate whose neighbourhood best matches the blended neighbourhood
@@ -337,22 +494,7 @@ fn correct(
                 for x in (sub.0..width).step_by(2) {
                     let x = x as i64;
                     // N_S(P), eq. 2: the blend at the neighbourhood's points.
-                    want.clear();
-                    for pt in points {
-                        let start = want.len();
-                        want.extend(std::iter::repeat_n(0.0f32, dims));
-                        let share = 1.0 / pt.len() as f32;
-                        for o in pt {
-                            let j = (y + i64::from(o[1])).rem_euclid(hh) as usize * width
-                                + (x + i64::from(o[0])).rem_euclid(w) as usize;
-                            for (a, v) in want[start..]
-                                .iter_mut()
-                                .zip(&blend[j * dims..(j + 1) * dims])
-                            {
-                                *a += v * share;
-                            }
-                        }
-                    }
+                    gather(blend, (width, height), dims, points, (x, y), want);
                     for (e, (exl, (k, table))) in ex.iter().zip(cands).enumerate() {
                         let i = y as usize * width + x as usize;
                         let (bases, nb) = exl.bases(|dx, dy| {
@@ -385,6 +527,48 @@ mod tests {
     use super::*;
 
     use crate::parallel::tests::texture;
+
+    #[test]
+    fn the_best_colour_shows_whole_pixels_of_one_exemplar_and_both_in_the_middle() {
+        let a = texture("pink_marble_color_128.png");
+        let b = texture("leaves_green_color_161.png");
+        let (w, h) = (96, 48);
+        let maps = crate::parallel::weights::ramp(2, crate::parallel::weights::Axis::X, w, h);
+        let mut backend = crate::search::LocalSearch::new(texsyn_engine::Engine::default());
+        let out = morph(
+            &[&a, &b],
+            &maps,
+            w,
+            h,
+            &ParallelSettings::default(),
+            &mut backend,
+            &crate::progress::Silent,
+        )
+        .unwrap();
+        let mut middle = [0usize; 2];
+        for y in 0..h {
+            for x in 0..w {
+                let px = out.image.get(x, y);
+                let [ca, cb] = [out.coords[0].get(x, y), out.coords[1].get(x, y)];
+                let from_a = px == a.get(ca[0] as usize, ca[1] as usize);
+                let from_b = px == b.get(cb[0] as usize, cb[1] as usize);
+                assert!(from_a || from_b, "({x}, {y}) is a mixture");
+                if x == 0 {
+                    assert!(from_a, "weight 1 of the first exemplar lost at ({x}, {y})");
+                }
+                if x == w - 1 {
+                    assert!(from_b, "weight 1 of the second exemplar lost at ({x}, {y})");
+                }
+                if (w / 3..2 * w / 3).contains(&x) {
+                    middle[usize::from(!from_a)] += 1;
+                }
+            }
+        }
+        assert!(
+            middle.iter().all(|&c| c > w * h / 30),
+            "the middle third is not both: {middle:?}"
+        );
+    }
 
     #[test]
     fn every_output_pixel_is_its_coordinate_s_exemplar_pixel_and_threads_do_not_matter() {

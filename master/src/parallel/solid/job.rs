@@ -71,12 +71,18 @@ impl SolidJob {
     pub fn validate(&self) -> Result<()> {
         let (h, passes) = (self.settings.histogram, self.settings.base.passes);
         ensure!(
-            h.is_finite() && (0.0..=100.0).contains(&h),
-            "--histogram {h} must be in [0, 100] (0: the paper's plain method)"
+            h.is_finite() && (0.0..=1.0).contains(&h),
+            "--histogram {h} must be in [0, 1] (1: full matching, 0: the paper's plain method)"
         );
         ensure!(
             (1..=64).contains(&passes),
             "--passes {passes} must be in 1..=64"
+        );
+        let k = self.settings.base.k;
+        ensure!(
+            (1..=crate::parallel::candidates::MAX_K).contains(&k),
+            "--k {k} must be in 1..={}",
+            crate::parallel::candidates::MAX_K
         );
         ensure!(
             self.size.iter().all(|&n| (1..=MAX_EDGE).contains(&n)),
@@ -262,6 +268,7 @@ impl SolidJob {
             "neighbourhood": s.base.neighbourhood.name(),
             "jitter": s.base.jitter,
             "passes": s.base.passes,
+            "k": s.base.k,
             "histogram": s.histogram,
             "seed": s.base.seed,
             "levels": out.levels,

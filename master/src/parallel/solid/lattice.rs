@@ -1,14 +1,16 @@
 //! The volume of a solid synthesis (Manke–Wünsche §5): the [`Lattice`] of
-//! voxels the level loop drives. Coordinates start in each view's plane
-//! (§5.1), upsample by eq. 4 and are corrected in eight sub-passes (§5.3),
-//! each view against the blend's neighbourhood in its plane (eq. 5), with
-//! histogram matching on the first appearance component.
+//! voxels the level loop drives. Coordinates start at random (a departure
+//! from §5.1, see [`initial`]), upsample by eq. 4 and are corrected in eight sub-passes (§5.3),
+//! each view against the blend's neighbourhood in its plane (eq. 5), the
+//! blend histogram-matched to the exemplars' appearance after every sub-pass
+//! ([`super::histogram`]).
 
 use rayon::prelude::*;
 
+use super::histogram::Matching;
 use super::weights::{downsample3, ViewWeights};
 use super::View;
-use crate::parallel::coords::jitter_offset;
+use crate::parallel::coords::{jitter_offset, position_hash};
 use crate::parallel::driver::{exemplar_seed, Lattice, LevelExemplars};
 use crate::parallel::exemplar::ExemplarLevel;
 use crate::progress::Progress;
@@ -25,9 +27,6 @@ pub const SUB_PASSES: [[usize; 3]; 8] = [
     [0, 1, 1],
     [1, 0, 0],
 ];
-
-/// Bins of the histogram matching.
-pub const BINS: usize = 32;
 
 /// A solid's volume being synthesised.
 pub(super) struct Volume<'a> {
@@ -51,6 +50,9 @@ pub(super) struct Volume<'a> {
     /// The current level's view weights.
     pub weights: Option<ViewWeights>,
     pub blend: Vec<f32>,
+    /// The blend histogram-matched, which the neighbourhoods are gathered
+    /// from (empty when the strength is 0).
+    pub matched: Vec<f32>,
 }
 
 impl Lattice for Volume<'_> {
@@ -65,7 +67,7 @@ impl Lattice for Volume<'_> {
             .map(|f| f.iter().map(|w| downsample3(w, self.size, h)).collect());
         self.weights = Some(ViewWeights::new(&material_of, volumes));
         let mut coords = if level == 0 {
-            initial(ls, self.views, h)
+            initial(ls, self.views, self.seed)
         } else {
             upsample(&self.coords, self.level_size, ls, self.views, h)
         };
@@ -97,18 +99,21 @@ impl Lattice for Volume<'_> {
         let ls = self.level_size;
         let m = self.views.len();
         let lw = self.weights.as_ref().expect("prepared");
-        let bins = Bins::over(&ex.ex);
-        let mut target = vec![0.0f64; BINS];
         let n = ls.iter().product::<usize>();
+        // The target of the matching: each exemplar's appearance with the
+        // mean weight of its views.
+        let mut mass = vec![0.0f64; ex.ex.len()];
         for (j, &e) in self.view_ex.iter().enumerate() {
-            let mean = (0..n).map(|i| f64::from(lw.at(j, i))).sum::<f64>() / n as f64;
-            for (t, v) in target.iter_mut().zip(bins.histogram(&ex.ex[e])) {
-                *t += mean * v;
-            }
+            mass[e] += (0..n).map(|i| f64::from(lw.at(j, i))).sum::<f64>() / n as f64;
         }
+        let sources: Vec<(&[f32], f64)> = ex
+            .ex
+            .iter()
+            .zip(&mass)
+            .map(|(e, &w)| (e.appearance.as_slice(), w))
+            .collect();
+        let matching = (self.histogram > 0.0).then(|| Matching::new(self.dims, &sources));
         let ctx = Level {
-            bins,
-            target,
             size: ls,
             m,
             dims: self.dims,
@@ -119,46 +124,43 @@ impl Lattice for Volume<'_> {
             points: &self.points3,
             cands: &ex.cands,
             weights: lw,
-            scale: ex
-                .ex
-                .iter()
-                .map(|e| {
-                    let n = (e.appearance.len() / e.dims.max(1)).max(1) as f64;
-                    let var = e
-                        .appearance
-                        .iter()
-                        .map(|&a| f64::from(a) * f64::from(a))
-                        .sum::<f64>()
-                        / n;
-                    (var * points.len() as f64) as f32
-                })
-                .collect(),
-            balance: self.histogram,
+            matching,
+            strength: self.histogram,
         };
         ctx.blend_all(&self.coords, &mut self.blend);
         for _ in 0..passes {
             for sub in SUB_PASSES {
-                ctx.correct(&mut self.coords, &mut self.blend, sub);
+                ctx.correct(&mut self.coords, &mut self.blend, &mut self.matched, sub);
                 progress.advance(1);
             }
         }
     }
 }
 
-/// The coarsest level's start (§5.1): `S(P) = P_{u,v}·h mod s_e` in each
-/// view's plane.
-pub(super) fn initial(ls: [usize; 3], views: &[View], h: usize) -> Vec<[u32; 2]> {
+/// The coarsest level's start: every voxel and view a random exemplar pixel,
+/// drawn by a hash of the voxel, the view and `seed` (a departure from
+/// §5.1). The paper's `S(P) = P_{u,v}·h mod s_e` tiles each view's exemplar
+/// along its plane; with the planes cyclic, any smooth gradient of the
+/// exemplar then adds up, over the three views, to a function of `x + y + z`,
+/// and the solid grows sheets across the (1, 1, 1) diagonal, seen on every
+/// slice as streaks along one diagonal. Random starts have no such order;
+/// the coarsest correction makes them coherent.
+pub(super) fn initial(ls: [usize; 3], views: &[View], seed: u64) -> Vec<[u32; 2]> {
     let n = ls.iter().product::<usize>();
     (0..n)
         .into_par_iter()
         .flat_map_iter(|i| {
-            let p = [i % ls[0], i / ls[0] % ls[1], i / (ls[0] * ls[1])];
-            views.iter().map(move |v| {
-                let [u, w] = v.axis.plane();
-                [
-                    (p[u] * h % v.exemplar.width) as u32,
-                    (p[w] * h % v.exemplar.height) as u32,
-                ]
+            let p = [
+                (i % ls[0]) as i64,
+                (i / ls[0] % ls[1]) as i64,
+                (i / (ls[0] * ls[1])) as i64,
+            ];
+            views.iter().enumerate().map(move |(j, v)| {
+                let r = position_hash(p, u32::MAX, exemplar_seed(seed, j));
+                let at = |u: f64, side: usize| {
+                    (((u + 1.0) / 2.0 * side as f64) as usize).min(side - 1) as u32
+                };
+                [at(r[0], v.exemplar.width), at(r[1], v.exemplar.height)]
             })
         })
         .collect()
@@ -199,45 +201,6 @@ pub(super) fn upsample(
         .collect()
 }
 
-/// Bins of the first appearance component over `[lo, hi]`.
-#[derive(Clone, Copy)]
-struct Bins {
-    lo: f32,
-    scale: f32,
-}
-
-impl Bins {
-    fn over(ex: &[ExemplarLevel]) -> Self {
-        let (lo, hi) = ex
-            .iter()
-            .flat_map(|e| e.appearance.iter().step_by(e.dims.max(1)))
-            .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
-        let scale = if hi > lo {
-            BINS as f32 / (hi - lo)
-        } else {
-            0.0
-        };
-        Self { lo, scale }
-    }
-
-    #[inline]
-    fn of(self, v: f32) -> usize {
-        (((v - self.lo) * self.scale) as usize).min(BINS - 1)
-    }
-
-    /// The histogram of an exemplar level's first component.
-    fn histogram(self, e: &ExemplarLevel) -> Vec<f64> {
-        let mut h = vec![0.0; BINS];
-        let mut n = 0.0;
-        for &v in e.appearance.iter().step_by(e.dims.max(1)) {
-            h[self.of(v)] += 1.0;
-            n += 1.0;
-        }
-        h.iter_mut().for_each(|v| *v /= n);
-        h
-    }
-}
-
 /// Everything a correction sub-pass of one level reads.
 struct Level<'a> {
     size: [usize; 3],
@@ -255,16 +218,9 @@ struct Level<'a> {
     /// Per distinct exemplar, `k` and every pixel's candidates.
     cands: &'a [(usize, Vec<[u32; 2]>)],
     weights: &'a ViewWeights,
-    /// Strength of the usage penalty (see [`Level::usage`]).
-    balance: f32,
-    /// Per distinct exemplar, the variance of its appearance vectors times
-    /// the neighbourhood's points: the size of a typical distance.
-    scale: Vec<f32>,
-    /// Bins of the first appearance component.
-    bins: Bins,
-    /// The histogram of the first component the solid should have: the
-    /// exemplars' histograms weighted by their views' mean weights.
-    target: Vec<f64>,
+    /// The histogram matching of the blend, and its strength.
+    matching: Option<Matching>,
+    strength: f32,
 }
 
 impl Level<'_> {
@@ -300,22 +256,34 @@ impl Level<'_> {
             .for_each(|(i, acc)| self.blend_at(i, coords, acc));
     }
 
-    /// One sub-pass: the voxels of parity `sub` take, in every view, the
-    /// candidate whose exemplar neighbourhood best matches the blend's
-    /// neighbourhood in the view's plane (eq. 5, eq. 3). Every voxel reads
-    /// the blend and the coordinates as they were before the sub-pass (the
-    /// voxels it reads have another parity, or are itself), so the result
-    /// does not depend on the threads. The blend is then brought up to date
-    /// at the voxels that changed.
-    fn correct(&self, coords: &mut [[u32; 2]], blend: &mut [f32], sub: [usize; 3]) {
+    /// One sub-pass: the blend histogram-matched to the exemplars
+    /// ([`Matching`]); then the voxels of parity `sub` take, in every view,
+    /// the candidate whose exemplar neighbourhood best matches the matched
+    /// blend's neighbourhood in the view's plane (eq. 5, eq. 3). Every voxel
+    /// reads the blend and the coordinates as they were before the sub-pass
+    /// (the voxels it reads have another parity, or are itself), so the
+    /// result does not depend on the threads. The blend is then brought up
+    /// to date at the voxels that changed.
+    fn correct(
+        &self,
+        coords: &mut [[u32; 2]],
+        blend: &mut [f32],
+        matched: &mut Vec<f32>,
+        sub: [usize; 3],
+    ) {
         let [w, h, d] = self.size;
         let m = self.m;
-        let pen = self.penalties(blend);
-        let pen = &pen;
+        if let Some(mt) = &self.matching {
+            mt.apply(blend, self.strength, matched);
+        }
         let zs: Vec<usize> = (sub[2]..d).step_by(2).collect();
         let updates: Vec<Vec<[u32; 2]>> = {
             let coords = &*coords;
-            let blend = &*blend;
+            let gather: &[f32] = if self.matching.is_some() {
+                matched
+            } else {
+                blend
+            };
             zs.par_iter()
                 .map_init(
                     || (Vec::new(), Vec::new()),
@@ -326,7 +294,7 @@ impl Level<'_> {
                                 let p = [x as i64, y as i64, z as i64];
                                 let i = (z * h + y) * w + x;
                                 for j in 0..m {
-                                    out.push(self.best(p, i, j, coords, blend, pen, want, buf));
+                                    out.push(self.best(p, i, j, coords, gather, want, buf));
                                 }
                             }
                         }
@@ -363,46 +331,6 @@ impl Level<'_> {
             });
     }
 
-    /// Histogram matching (after Kopf et al.'s use of it against the
-    /// wash-out of solid synthesis), on the first appearance component (the
-    /// brightness of a pixel's 5×5 window, so it restores contrast at the
-    /// window's scale, not as grain): per bin, the penalty a candidate of
-    /// that bin pays, `balance·(H/T − 1)` (times the exemplar's `scale`)
-    /// where the solid's blend `H` holds more of the bin than the
-    /// exemplars' `T`, 0 otherwise. Counted on the blend before the
-    /// sub-pass, so it does not depend on the threads.
-    fn penalties(&self, blend: &[f32]) -> Vec<f32> {
-        let n = blend.len() / self.dims;
-        let counts = blend
-            .par_chunks(self.dims * 4096)
-            .fold(
-                || vec![0u64; BINS],
-                |mut acc, chunk| {
-                    for v in chunk.iter().step_by(self.dims) {
-                        acc[self.bins.of(*v)] += 1;
-                    }
-                    acc
-                },
-            )
-            .reduce(
-                || vec![0u64; BINS],
-                |mut a, b| {
-                    for (x, y) in a.iter_mut().zip(b) {
-                        *x += y;
-                    }
-                    a
-                },
-            );
-        counts
-            .iter()
-            .zip(&self.target)
-            .map(|(&c, &t)| {
-                let h = c as f64 / n as f64;
-                (self.balance as f64 * (h / t.max(1e-4) - 1.0).max(0.0)) as f32
-            })
-            .collect()
-    }
-
     /// View `j`'s best candidate at voxel `p` (index `i`).
     #[allow(clippy::too_many_arguments)]
     #[inline]
@@ -413,7 +341,6 @@ impl Level<'_> {
         j: usize,
         coords: &[[u32; 2]],
         blend: &[f32],
-        pen: &[f32],
         want: &mut Vec<f32>,
         buf: &mut Vec<f32>,
     ) -> [u32; 2] {
@@ -444,14 +371,13 @@ impl Level<'_> {
             q[v] += dv;
             coords[self.index(q) * self.m + j]
         });
-        let scale = self.scale[self.view_ex[j]];
         exl.best_candidate(
             &bases[..nb],
             (*k, table),
             self.points2,
             (want, buf),
             coords[i * self.m + j],
-            |q| scale * pen[self.bins.of(exl.at(q[0], q[1])[0])],
+            |_| 0.0,
         )
     }
 }

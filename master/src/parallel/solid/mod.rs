@@ -11,6 +11,13 @@
 //! each with its views, morph under weight volumes as the 2-D morph does
 //! under weight maps (§4): a view's weight is its material's weight shared
 //! evenly among the material's views.
+//!
+//! Plain, this washes out (Manke–Wünsche §6 note the smoothing): the blend
+//! of views that do not yet agree is flatter than the exemplar, and the
+//! views match its flatness. As Kopf et al. 2007 do, the solid's
+//! histograms are matched to the exemplar's: the blend's appearance
+//! components after every sub-pass, the output colour per channel at the
+//! end ([`histogram`]).
 
 use anyhow::{bail, ensure, Result};
 
@@ -22,6 +29,7 @@ use crate::imaging::ColorImage;
 use crate::progress::Progress;
 use crate::search::SearchBackend;
 
+mod histogram;
 mod job;
 mod lattice;
 #[cfg(test)]
@@ -29,7 +37,7 @@ mod tests;
 mod weights;
 
 pub use job::{ReplayFiles, SolidJob, SolidSummary, ViewFile, WeightFiles, MAX_EDGE};
-pub use lattice::{BINS, SUB_PASSES};
+pub use lattice::SUB_PASSES;
 pub use weights::ViewWeights;
 
 pub use crate::imaging::volume::Axis;
@@ -69,13 +77,17 @@ pub struct Solid {
     /// Components of the appearance space and the variance they keep.
     pub dims: usize,
     pub explained_variance: f64,
+    /// Strength of the colour's histogram matching (0: none, as for a
+    /// morph of several materials), which [`replay`] applies too.
+    pub colour_matching: f32,
 }
 
 /// Bytes a solid of `size` with `views` views, `materials` materials and
 /// `dims` appearance components needs at its finest level: coordinates
 /// (twice at the end, when they are split per view), the sub-pass's new
-/// coordinates, the appearance blend, the weight volumes (full size and
-/// level), and the colour (twice, as it is written).
+/// coordinates, the appearance blend and its histogram-matched copy, the
+/// weight volumes (full size and level), and the colour (twice, as it is
+/// written).
 pub fn memory_needed(size: [usize; 3], views: usize, materials: usize, dims: usize) -> u64 {
     let v = size.iter().map(|&s| s as u64).product::<u64>();
     let m = views as u64;
@@ -84,7 +96,7 @@ pub fn memory_needed(size: [usize; 3], views: usize, materials: usize, dims: usi
     } else {
         0
     };
-    v * (17 * m + 4 * dims as u64 + weights + 6)
+    v * (17 * m + 8 * dims as u64 + weights + 6)
 }
 
 /// Synthesises a solid of `size` voxels from `views`; a solid larger than
@@ -236,32 +248,36 @@ pub fn synthesize(
         level_size: [0; 3],
         weights: None,
         blend: Vec::new(),
+        matched: Vec::new(),
     };
     let levels = run_levels(&mut volume, &uniq, &pca, s, backend, progress)?.len();
     // The blend is done with; freed before the colour and the per-view
     // split, which are the peak.
     volume.blend = Vec::new();
+    volume.matched = Vec::new();
     let coords = std::mem::take(&mut volume.coords);
     let weights = volume.weights.take().expect("at least one level");
-    let colour = blend(voxels, m, 3, |i, j| {
-        let c = coords[i * m + j];
-        (
-            weights.at(j, i),
-            views[j].exemplar.get(c[0] as usize, c[1] as usize),
-        )
-    });
-    let per_view = (0..m)
+    let per_view: Vec<Vec<[u32; 2]>> = (0..m)
         .map(|j| coords.iter().skip(j).step_by(m).copied().collect())
         .collect();
-    Ok(Solid {
+    drop(coords);
+    let mut solid = Solid {
         size,
-        colour,
+        colour: Vec::new(),
         coords: per_view,
         weights,
         levels,
         dims,
         explained_variance: pca.explained,
-    })
+        colour_matching: if materials == 1 {
+            settings.histogram
+        } else {
+            0.0
+        },
+    };
+    let exemplars: Vec<ColorImage> = views.iter().map(|v| v.exemplar.clone()).collect();
+    solid.colour = replay(&solid, &exemplars, 3)?.data;
+    Ok(solid)
 }
 
 /// Settings of a solid synthesis.
@@ -269,20 +285,26 @@ pub fn synthesize(
 pub struct SolidSettings {
     /// Neighbourhood (half, 5 or 7), jitter, passes, k and seed.
     pub base: ParallelSettings,
-    /// Strength of the histogram matching; 0 is the paper's plain method.
+    /// Strength of the histogram matching, 0 to 1: 1 matches fully, 0 is
+    /// the paper's plain method.
     pub histogram: f32,
 }
 
-/// Default strength of the histogram matching: strong enough that solids
-/// keep about two thirds of their exemplar's contrast instead of a third,
-/// weak enough not to turn to grain (ARCHITECTURE §11).
-pub const HISTOGRAM: f32 = 4.0;
+/// Default k of a solid's k-coherence sets: 2, as Lefebvre and Hoppe use
+/// (the plane's default is 4). Each view of each voxel compares `9·k`
+/// candidates, and a 128³ solid of three views takes half the time of
+/// k = 4 (ARCHITECTURE §11).
+pub const K: usize = 2;
+
+/// Default strength of the histogram matching: full (ARCHITECTURE §11).
+pub const HISTOGRAM: f32 = 1.0;
 
 impl Default for SolidSettings {
     fn default() -> Self {
         Self {
             base: ParallelSettings {
                 neighbourhood: Neighbourhood::Half,
+                k: K,
                 ..ParallelSettings::default()
             },
             histogram: HISTOGRAM,
@@ -292,7 +314,9 @@ impl Default for SolidSettings {
 
 /// A map replayed through a solid's coordinates (§5.5): per voxel
 /// `Σ Wʲ·Mʲ(Sʲ)`, rounded, with `channels` 1 (the map's grey) or 3; `maps`
-/// holds one map per view, each its view's exemplar size.
+/// holds one map per view, each its view's exemplar size. Each channel is
+/// then histogram-matched to the views' maps as the colour is (so replaying
+/// the colour exemplars gives the solid's colour).
 pub fn replay(s: &Solid, maps: &[ColorImage], channels: usize) -> Result<Volume> {
     ensure!(maps.len() == s.coords.len(), "one map per view");
     ensure!(
@@ -307,5 +331,19 @@ pub fn replay(s: &Solid, maps: &[ColorImage], channels: usize) -> Result<Volume>
             maps[j].get(c[0] as usize, c[1] as usize),
         )
     });
+    let mut data = data;
+    if s.colour_matching > 0.0 && voxels > 0 {
+        for ch in 0..channels {
+            // The views' maps, each with its view's weight.
+            let mut target = [0.0f64; 256];
+            for (j, map) in maps.iter().enumerate() {
+                let w = f64::from(s.weights.at(j, 0)) / map.len().max(1) as f64;
+                for p in map.rgb.chunks_exact(3) {
+                    target[usize::from(p[ch])] += w;
+                }
+            }
+            histogram::match_bytes(&mut data, channels, ch, &target, s.colour_matching);
+        }
+    }
     Volume::new(s.size, channels, data)
 }
