@@ -12,15 +12,15 @@
 //! window's distance is the vectors'. Spaces this small are searched through
 //! the engine's k-d tree, whose answers are the exhaustive scan's.
 //!
-//! Every pixel is a query. The references are every pixel of the level, or
-//! on a coarse level of step `h` the pixels of a grid of stride `h/2`: a
-//! stack level blurred over `h` pixels is a pyramid level repeated `h²`
-//! times, and pixels less than `h/2` apart look alike. Each pixel's set is
+//! Every pixel is a query and every pixel a reference, up to
+//! [`EXACT_PIXELS`] per level; above, a grid of pixels (see there). Each pixel's set is
 //! itself first (the coherent candidate), then its nearest references in
 //! (distance, index) order, passing over any within the level's near-duplicate
 //! radius of one already taken. Since every pixel has its own list, a
 //! candidate's phase is free: nothing ties it to its query's position modulo
-//! a grid.
+//! a grid (on a gridded large level, a candidate keeps its pixel's phase
+//! modulo the stride, which the random start of [`super::coords`] leaves
+//! free in the output).
 
 use anyhow::{ensure, Result};
 use rayon::prelude::*;
@@ -36,6 +36,13 @@ pub const MAX_K: usize = 16;
 pub const SEARCH_DIMS: usize = 9;
 /// Side of the plane cell one vector occupies.
 const CELL: usize = 3;
+/// Most pixels of a level whose sets are searched exactly, every pixel
+/// against every pixel. A larger level (an exemplar over 512²) is searched
+/// on a grid of the smallest stride that fits, queries and references alike,
+/// and pixel `q` takes its grid pixel `g`'s list shifted by `q − g` (the
+/// shift of k-coherence itself): the exact search of a 1024² level took
+/// minutes on 2 cores.
+pub const EXACT_PIXELS: usize = 512 * 512;
 /// Queries per batch handed to the backend.
 const BATCH: usize = 8192;
 
@@ -60,9 +67,9 @@ pub struct Spacing {
 }
 
 impl Spacing {
-    /// The spacing of the stack level of step `h`: references `h/2` apart
-    /// (every pixel on the two finest levels), near-duplicates within
-    /// `max(2, h)` pixels.
+    /// The spacing of the stack level of step `h`: every pixel a reference,
+    /// near-duplicates within `max(2, h/2)` pixels (on a level blurred over
+    /// `h` pixels, closer pixels are the same candidate).
     pub fn of_step(h: usize) -> Self {
         Self {
             stride: 1,
@@ -88,7 +95,10 @@ impl Candidates {
     ) -> Result<Self> {
         ensure!((1..=MAX_K).contains(&k), "k must be in 1..={MAX_K}");
         ensure!(appearance.len() == width * height * dims, "appearance size");
-        let stride = spacing.stride.clamp(1, width.min(height));
+        let large = ((width * height) as f64 / EXACT_PIXELS as f64)
+            .sqrt()
+            .ceil() as usize;
+        let stride = spacing.stride.max(large).clamp(1, width.min(height));
         let (grid_w, grid_h) = (width.div_ceil(stride), height.div_ceil(stride));
         let used = dims.min(SEARCH_DIMS);
         let (lo, hi) = appearance
@@ -142,16 +152,18 @@ impl Candidates {
         // Enough neighbours that the near-duplicates passed over leave k.
         let extra = (4 * k + 8).min(grid_w * grid_h);
         let radius = spacing.radius;
-        // Pixels with the same quantised vector have the same neighbours
-        // (on a blurred level, many): each distinct vector is searched once,
-        // in the order first met.
+        let size = (width as u32, height as u32);
+        // The queries: the grid pixels (every pixel at stride 1). Pixels
+        // with the same quantised vector have the same neighbours (on a
+        // blurred level, many): each distinct vector is searched once, in the
+        // order first met.
         let n = width * height;
         let mut distinct: std::collections::HashMap<[u8; CELL * CELL], u32> =
             std::collections::HashMap::new();
         let mut vectors: Vec<[u8; CELL * CELL]> = Vec::new();
-        let of_pixel: Vec<u32> = (0..n)
-            .map(|i| {
-                let c = cell_of(i);
+        let of_grid: Vec<u32> = (0..grid_w * grid_h)
+            .map(|g| {
+                let c = cell_of((g / grid_w) * stride * width + (g % grid_w) * stride);
                 *distinct.entry(c).or_insert_with(|| {
                     vectors.push(c);
                     (vectors.len() - 1) as u32
@@ -180,19 +192,21 @@ impl Candidates {
             references = grid_w * grid_h,
             "k-coherence queries"
         );
-        let size = (width as u32, height as u32);
         let table: Vec<[u32; 2]> = (0..n)
             .into_par_iter()
             .flat_map_iter(|i| {
-                let q = [(i % width) as u32, (i / width) as u32];
-                let refs = lists[of_pixel[i] as usize].iter().map(|&g| {
+                let (x, y) = (i % width, i / width);
+                // The grid pixel at or before q, and q's shift from it.
+                let (gx, gy) = (x / stride, y / stride);
+                let (dx, dy) = ((x - gx * stride) as u32, (y - gy * stride) as u32);
+                let refs = lists[of_grid[gy * grid_w + gx] as usize].iter().map(|&g| {
                     let g = g as usize;
                     [
-                        ((g % grid_w) * stride) as u32,
-                        ((g / grid_w) * stride) as u32,
+                        (((g % grid_w) * stride) as u32 + dx) % size.0,
+                        (((g / grid_w) * stride) as u32 + dy) % size.1,
                     ]
                 });
-                set_of(q, refs, k, radius, size)
+                set_of([x as u32, y as u32], refs, k, radius, size)
             })
             .collect();
         backend.end_level();
@@ -289,7 +303,11 @@ mod tests {
     fn the_sets_are_the_exact_nearest_vectors() {
         let (w, h, dims, k) = (80, 60, 12, 5);
         let app = random_appearance(w * h * dims, 12345);
-        for spacing in [Spacing::of_step(1), Spacing::of_step(6)] {
+        let grid = Spacing {
+            stride: 3,
+            radius: 2,
+        };
+        for spacing in [Spacing::of_step(1), Spacing::of_step(8), grid] {
             let mut backend = LocalSearch::new(Engine::default());
             let c = Candidates::search(
                 &app,
@@ -322,18 +340,22 @@ mod tests {
                 .flat_map(|y| (0..w).step_by(stride).map(move |x| y * w + x))
                 .collect();
             for p in [0usize, 17, 555, 1199, 4799] {
+                let (x, y) = (p % w, p / w);
+                // The grid pixel the query is searched from, and the shift.
+                let g = y / stride * stride * w + x / stride * stride;
+                let (dx, dy) = (x % stride, y % stride);
                 let mut all: Vec<(i64, usize)> = refs
                     .iter()
                     .enumerate()
-                    .map(|(g, &r)| (dist(p, r), g))
+                    .map(|(i, &r)| (dist(g, r), i))
                     .collect();
                 all.sort();
-                let pos = [(p % w) as u32, (p / w) as u32];
+                let pos = [x as u32, y as u32];
                 let want = set_of(
                     pos,
-                    all.iter().take(4 * k + 8).map(|&(_, g)| {
-                        let r = refs[g];
-                        [(r % w) as u32, (r / w) as u32]
+                    all.iter().take(4 * k + 8).map(|&(_, i)| {
+                        let r = refs[i];
+                        [((r % w + dx) % w) as u32, ((r / w + dy) % h) as u32]
                     }),
                     k,
                     spacing.radius,
