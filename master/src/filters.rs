@@ -1,8 +1,12 @@
 //! Wrapping box filters shared by the methods: the running-sum box blur of
 //! the coordinate method's stack levels (Manke–Wünsche §3) and the blurred
-//! spectra of procedural matching (Bourque–Dudek §3.2).
+//! spectra of procedural matching (Bourque–Dudek §3.2); and the 2-D FFT
+//! that `compare`, the tile evaluation and the periodicity analysis share.
 
 use std::ops::{Add, Sub};
+
+use rustfft::num_complex::Complex;
+use rustfft::{Fft, FftNum};
 
 use crate::imaging::ColorImage;
 
@@ -70,6 +74,30 @@ pub fn box_blur_lines(v: &mut [f64], n: usize, lines: usize, r: usize, step: usi
             *x = v[at(k)];
         }
         window_sums(n, r, |k| line[k], |k, sum| v[at(k)] = sum / width);
+    }
+}
+
+/// 2-D FFT in place of a `w`×`h` buffer (row by row): rows `0..rows` (the
+/// only ones that may be non-zero) through `row_fft`, then every column
+/// through `col_fft`. The plans' direction decides forward or inverse.
+pub fn fft2<T: FftNum>(
+    buf: &mut [Complex<T>],
+    (w, h): (usize, usize),
+    rows: usize,
+    (row_fft, col_fft): (&dyn Fft<T>, &dyn Fft<T>),
+) {
+    for row in buf.chunks_exact_mut(w).take(rows) {
+        row_fft.process(row);
+    }
+    let mut col = vec![Complex::new(T::zero(), T::zero()); h];
+    for x in 0..w {
+        for y in 0..h {
+            col[y] = buf[y * w + x];
+        }
+        col_fft.process(&mut col);
+        for y in 0..h {
+            buf[y * w + x] = col[y];
+        }
     }
 }
 

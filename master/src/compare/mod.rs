@@ -200,21 +200,8 @@ pub(crate) fn weighted_spectrum(v: &[f64], w: usize, h: usize) -> Vec<f64> {
     let mean = v.iter().sum::<f64>() / v.len() as f64;
     let mut buf: Vec<Complex<f64>> = v.iter().map(|&x| Complex::new(x - mean, 0.0)).collect();
     let mut planner = FftPlanner::new();
-    let rows = planner.plan_fft_forward(w);
-    for row in buf.chunks_exact_mut(w) {
-        rows.process(row);
-    }
-    let cols = planner.plan_fft_forward(h);
-    let mut col = vec![Complex::new(0.0, 0.0); h];
-    for x in 0..w {
-        for y in 0..h {
-            col[y] = buf[y * w + x];
-        }
-        cols.process(&mut col);
-        for y in 0..h {
-            buf[y * w + x] = col[y];
-        }
-    }
+    let (rows, cols) = (planner.plan_fft_forward(w), planner.plan_fft_forward(h));
+    crate::filters::fft2(&mut buf, (w, h), h, (&*rows, &*cols));
     let mut out: Vec<f64> = (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
         .map(|(x, y)| {

@@ -11,7 +11,7 @@
 use rustfft::{num_complex::Complex, FftPlanner};
 
 use super::shaders::{Layout, Shader};
-use crate::filters::box_blur_lines;
+use crate::filters::{box_blur_lines, fft2};
 
 /// Directions in which the period is read, over 180°.
 pub const DIRECTIONS: usize = 36;
@@ -227,10 +227,12 @@ fn autocorrelation(v: &[f64], n: usize) -> Vec<f64> {
         }
     }
     let mut planner = FftPlanner::new();
-    fft2(&mut buf, m, planner.plan_fft_forward(m).as_ref());
+    let plan = planner.plan_fft_forward(m);
+    fft2(&mut buf, (m, m), m, (&*plan, &*plan));
     buf.iter_mut()
         .for_each(|c| *c = Complex::new(c.norm_sqr(), 0.0));
-    fft2(&mut buf, m, planner.plan_fft_inverse(m).as_ref());
+    let plan = planner.plan_fft_inverse(m);
+    fft2(&mut buf, (m, m), m, (&*plan, &*plan));
     let zero = buf[0].re;
     let lag = |k: usize| if k > n { m - k } else { k };
     (0..m * m)
@@ -243,23 +245,6 @@ fn autocorrelation(v: &[f64], n: usize) -> Vec<f64> {
             buf[i].re / overlap / zero
         })
         .collect()
-}
-
-/// A 2-D transform of the `m`×`m` `buf` in place: rows, then columns.
-fn fft2(buf: &mut [Complex<f64>], m: usize, plan: &dyn rustfft::Fft<f64>) {
-    for row in buf.chunks_exact_mut(m) {
-        plan.process(row);
-    }
-    let mut col = vec![Complex::new(0.0, 0.0); m];
-    for x in 0..m {
-        for y in 0..m {
-            col[y] = buf[y * m + x];
-        }
-        plan.process(&mut col);
-        for y in 0..m {
-            buf[y * m + x] = col[y];
-        }
-    }
 }
 
 /// The first clear peak of a correlation profile (index = lag).

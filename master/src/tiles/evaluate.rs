@@ -15,6 +15,8 @@ use anyhow::{ensure, Result};
 use rayon::prelude::*;
 use rustfft::{num_complex::Complex, Fft, FftPlanner};
 
+use crate::filters::fft2;
+
 use super::ais::Gene;
 use super::omega::OmegaSet;
 use crate::imaging::ColorImage;
@@ -92,28 +94,6 @@ fn halve(img: &ColorImage) -> ColorImage {
         }
     }
     out
-}
-
-/// 2-D FFT in place of a `w`×`h` buffer; rows `0..rows` only may be non-zero.
-fn fft2(
-    buf: &mut [Complex<f32>],
-    (w, h): (usize, usize),
-    rows: usize,
-    (row_fft, col_fft): (&dyn Fft<f32>, &dyn Fft<f32>),
-) {
-    for row in buf.chunks_exact_mut(w).take(rows) {
-        row_fft.process(row);
-    }
-    let mut col = vec![Complex::new(0.0, 0.0); h];
-    for x in 0..w {
-        for y in 0..h {
-            col[y] = buf[y * w + x];
-        }
-        col_fft.process(&mut col);
-        for y in 0..h {
-            buf[y * w + x] = col[y];
-        }
-    }
 }
 
 /// The evaluation of intermediate tiles: the level, its spectra, the window
