@@ -49,11 +49,7 @@ impl CoordMap {
     pub fn random(width: usize, height: usize, exemplar: (usize, usize), seed: u64) -> Self {
         let coords = (0..height)
             .flat_map(|y| (0..width).map(move |x| (x, y)))
-            .map(|(x, y)| {
-                let u = position_hash([x as i64, y as i64, 0], u32::MAX, seed);
-                let pick = |v: f64, n: usize| (((v + 1.0) / 2.0 * n as f64) as usize).min(n - 1);
-                [pick(u[0], exemplar.0) as u32, pick(u[1], exemplar.1) as u32]
-            })
+            .map(|(x, y)| random_pixel([x as i64, y as i64, 0], exemplar, seed))
             .collect();
         Self {
             width,
@@ -111,6 +107,15 @@ pub fn jitter_offset(p: [i64; 3], r: f64, level: u32, seed: u64) -> [i64; 2] {
         (j + if j >= 0.0 { k } else { 1.0 - k }).floor() as i64
     };
     [axis(h[0]), axis(h[1])]
+}
+
+/// An exemplar pixel drawn from a hash of position `p` (2-D positions have
+/// `p[2] = 0`) and `seed`, uniform over a `exemplar.0`×`exemplar.1` exemplar:
+/// the random start of a plane or a volume.
+pub fn random_pixel(p: [i64; 3], exemplar: (usize, usize), seed: u64) -> [u32; 2] {
+    let u = position_hash(p, u32::MAX, seed);
+    let pick = |v: f64, n: usize| (((v + 1.0) / 2.0 * n as f64) as usize).min(n - 1) as u32;
+    [pick(u[0], exemplar.0), pick(u[1], exemplar.1)]
 }
 
 /// Two values in `[−1, 1)` from a position, a level and a seed (SplitMix64).

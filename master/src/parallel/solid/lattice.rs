@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use super::histogram::Matching;
 use super::weights::{downsample3, ViewWeights};
 use super::View;
-use crate::parallel::coords::{jitter_offset, position_hash};
+use crate::parallel::coords::{jitter_offset, random_pixel};
 use crate::parallel::driver::{exemplar_seed, Lattice, LevelExemplars};
 use crate::parallel::exemplar::ExemplarLevel;
 use crate::progress::Progress;
@@ -156,11 +156,11 @@ pub(super) fn initial(ls: [usize; 3], views: &[View], seed: u64) -> Vec<[u32; 2]
                 (i / (ls[0] * ls[1])) as i64,
             ];
             views.iter().enumerate().map(move |(j, v)| {
-                let r = position_hash(p, u32::MAX, exemplar_seed(seed, j));
-                let at = |u: f64, side: usize| {
-                    (((u + 1.0) / 2.0 * side as f64) as usize).min(side - 1) as u32
-                };
-                [at(r[0], v.exemplar.width), at(r[1], v.exemplar.height)]
+                random_pixel(
+                    p,
+                    (v.exemplar.width, v.exemplar.height),
+                    exemplar_seed(seed, j),
+                )
             })
         })
         .collect()
