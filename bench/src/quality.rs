@@ -33,11 +33,12 @@ pub const METHODS: [&str; 9] = [
 /// Methods run only when named: the block method's variants and Embark's
 /// `texture-synthesis` (the peer; `cargo install texture-synthesis-cli
 /// --locked`), for the block method's comparison.
-pub const EXTRA_METHODS: [&str; 5] = [
+pub const EXTRA_METHODS: [&str; 6] = [
     "block-scanline",
     "block-hard",
     "block-path",
     "block-repeat",
+    "block-seam",
     "embark",
 ];
 
@@ -51,7 +52,8 @@ pub struct QualityArgs {
     /// Methods to run, of: block, parallel-reduced, parallel-half,
     /// parallel-5, parallel-7, somol, omega, morph, solid; and, only when
     /// named, block-scanline, block-hard and block-path (the two stitches;
-    /// `synth`'s default is path), block-repeat (repetition control at 25%)
+    /// `synth`'s default is path), block-repeat (repetition control at 25%),
+    /// block-seam (repetition control with the seam filter, 15%, N = 13)
     /// and embark (Embark's texture-synthesis, the peer).
     #[arg(long, value_delimiter = ',', default_values_t = METHODS.map(String::from))]
     pub methods: Vec<String>,
@@ -235,13 +237,15 @@ impl Job<'_> {
         let out = self.path("out.png");
         let tile = (w.min(h) / 2) & !1;
         match method {
-            "block" | "block-scanline" | "block-hard" | "block-path" | "block-repeat" => {
+            "block" | "block-scanline" | "block-hard" | "block-path" | "block-repeat"
+            | "block-seam" => {
                 let mut args = vec!["synth", &sample, "-o", &out, "--size", &size];
                 match method {
                     "block-scanline" => args.extend(["--method", "scanline"]),
                     "block-hard" => args.extend(["--stitch", "hard"]),
                     "block-path" => args.extend(["--stitch", "path"]),
                     "block-repeat" => args.extend(["--repeat-percent", "25"]),
+                    "block-seam" => args.extend(["--repeat-seam", "15", "--neighbourhood", "13"]),
                     _ => {}
                 }
                 let (t, m) = self.texsyn(&args)?;

@@ -1365,6 +1365,15 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
             &["--repeat-percent", "0", "--repeat-candidates", "4"],
             &["--repeat-candidates", "slack"],
         ),
+        (
+            &["--stitch", "hard", "--repeat-seam", "15"],
+            &["--repeat-seam", "--stitch path"],
+        ),
+        (&["--repeat-seam", "2000"], &["--repeat-seam", "0..=1000"]),
+        (
+            &["--no-repeat-control", "--repeat-seam", "15"],
+            &["--no-repeat-control", "--repeat-seam"],
+        ),
     ] {
         let args = [
             &["synth", s(&sample), "-o", s(&out), "--size", "96x96"][..],
@@ -1373,4 +1382,23 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
         .concat();
         fails(&args, &out, words);
     }
+    // The seam filter on `extend` needs path stitching named.
+    fails(
+        &[
+            "extend",
+            s(&sample),
+            "-o",
+            s(&out),
+            "--size",
+            "144x128",
+            "--repeat-seam",
+            "15",
+        ],
+        &out,
+        &["--stitch path"],
+    );
+    assert!(
+        synth != run("synth", "seam", &["--repeat-seam", "15"]),
+        "the seam filter changed nothing"
+    );
 }

@@ -1172,4 +1172,28 @@ fn repetition_control_is_identical_over_threads_and_workers() {
     );
     let plain = run("plain", &["--threads", "2"]);
     assert!(one != plain, "repetition control changed nothing");
+    // The seam filter runs on the master too: the same bytes on 1 thread and
+    // on 2 workers, and a different pick from the same slack without it.
+    let seam = ["--repeat-seam", "15"];
+    let seam_one = run("seam-one", &[&seam[..], &["--threads", "1"]].concat());
+    let seam_workers = run(
+        "seam-workers",
+        &[
+            &seam[..],
+            &[
+                "--search",
+                "cluster,cluster,cluster",
+                "--local-workers",
+                "2",
+                "--require-cluster",
+            ],
+        ]
+        .concat(),
+    );
+    assert!(
+        seam_one == seam_workers,
+        "the seam filter differs on 2 local workers"
+    );
+    let unfiltered = run("unfiltered", &["--repeat-percent", "150", "--threads", "2"]);
+    assert!(seam_one != unfiltered, "the seam filter changed nothing");
 }

@@ -157,6 +157,12 @@ impl Config {
             "batch {} must be in 1..=4096 (1 = the paper's strict order)",
             self.batch
         );
+        if let Some(r) = &self.repeats {
+            ensure!(
+                r.seam.is_none() || self.stitch == Stitch::Path,
+                "--repeat-seam filters by the stitched seam's error and needs --stitch path"
+            );
+        }
         Weights::new(self.weights.hi, self.weights.lo)?;
         if let Some(r) = &self.repeats {
             r.validate()?;

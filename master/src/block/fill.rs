@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
 use rayon::prelude::*;
-use texsyn_engine::{Geometry, Layout, Metric, Positions, QueryBatch, Slack};
+use texsyn_engine::{Geometry, Hit, Layout, Metric, Positions, QueryBatch, Slack};
 
 use super::canvas::{set_pixel, Canvas};
 use super::neighbourhood::{candidates, query, Shape};
@@ -196,13 +196,29 @@ pub(super) fn fill_level(
         stats.queries += chosen.len() as u64;
         stats.batches += 1;
         for (&blk, hits) in chosen.iter().zip(&lists) {
-            let hit = match &usage {
-                Some(u) => repeats::pick(hits, |h| {
-                    ctx.positions
-                        .get(h.index)
-                        .map_or(u64::MAX, |p| u.block(p, b))
-                }),
-                None => hits.first().copied(),
+            let hit = match (&usage, &ctx.cfg.repeats) {
+                (Some(u), Some(r)) => {
+                    let block_use = |h: &Hit| {
+                        ctx.positions
+                            .get(h.index)
+                            .map_or(u64::MAX, |p| u.block(p, b))
+                    };
+                    match (r.seam, &stitch) {
+                        (Some(percent), Some((known, band))) => {
+                            let costs: Vec<f64> = hits
+                                .iter()
+                                .map(|h| {
+                                    ctx.positions.get(h.index).map_or(f64::INFINITY, |p| {
+                                        seam_error(canvas, &grid, blk, p, ctx, known, *band)
+                                    })
+                                })
+                                .collect();
+                            repeats::pick_within_seam(hits, &costs, percent, block_use)
+                        }
+                        _ => repeats::pick(hits, block_use),
+                    }
+                }
+                _ => hits.first().copied(),
             }
             .context("search returned no answer")?;
             let pos = ctx.positions.get(hit.index).with_context(|| {
@@ -368,27 +384,21 @@ fn stitch_band(b: usize, n: usize) -> usize {
     ((n - b) / 2).min(3)
 }
 
-/// Extends the block just copied into the already synthesised pixels around
-/// it, up to a minimum-error path (ARCHITECTURE §3.12; Somol–Haindl §2.1).
-/// Each side is a band `band` pixels wide and one block long outside the
-/// block; the error is the luminance difference between the canvas and the
-/// block's reference continued into the band; the optimal path over it
-/// decides, per row, how far the reference continues. Pixels are copied whole
-/// from the sample, so the copy map stays exact (no blending). A side is left
-/// as it is if any band pixel is outside the canvas, not yet defined, known
-/// before the search, or has no defined reference pixel. Bands stay inside the
-/// block's N×N window, which no other block of the batch overlaps, so the
-/// result does not depend on the order of the batch's copies.
-fn stitch_block(
-    canvas: &mut Canvas,
+/// The stitching bands of the reference block at `pos` copied into block
+/// `blk` (ARCHITECTURE §3.12): up to four sides, each `band` pixels wide and
+/// one block long outside the block, with the luminance error of continuing
+/// the reference into each cell. A side is left out if any band pixel is
+/// outside the canvas, not yet defined or known before the search.
+fn bands(
+    canvas: &Canvas,
     grid: &Grid,
     blk: u32,
     pos: [u32; 2],
     ctx: &LevelContext,
     known: &[bool],
     band: usize,
-) {
-    use crate::seams::{optimal, ErrorMap};
+) -> Vec<Side> {
+    use crate::seams::ErrorMap;
     let b = grid.b;
     let (bx, by) = grid.xy(blk);
     let (x0, y0) = ((bx * b) as isize, (by * b) as isize);
@@ -409,9 +419,11 @@ fn stitch_block(
         (|i, j, _, _| (j, -1 - i), bw),
         (|i, j, _, h| (j, h + i), bw),
     ];
+    let mut out = Vec::new();
     for (offset, along) in sides {
         let mut cells = Vec::with_capacity(band * along as usize);
         let mut ok = true;
+        let mut src_out = false;
         'scan: for j in 0..along {
             for i in 0..band as isize {
                 let (dx, dy) = offset(i, j, bw, bh);
@@ -426,12 +438,21 @@ fn stitch_block(
                         .defined
                         .as_ref()
                         .is_none_or(|d| d[(sy * sw + sx) as usize]);
-                if !canvas.defined[k] || known[k] || !source_defined {
+                if !canvas.defined[k] || known[k] {
                     ok = false;
+                    break 'scan;
+                }
+                if !source_defined {
+                    ok = false;
+                    src_out = true;
                     break 'scan;
                 }
                 cells.push((k, sx as usize, sy as usize));
             }
+        }
+        if src_out {
+            out.push(Side::SourceOut(along as usize));
+            continue;
         }
         if !ok || cells.is_empty() {
             continue;
@@ -440,7 +461,73 @@ fn stitch_block(
             .iter()
             .map(|&(k, sx, sy)| f32::from(canvas.lum[k].abs_diff(ls.lum.get(sx, sy))))
             .collect();
-        let path = optimal(&ErrorMap::new(band, along as usize, e));
+        out.push(Side::Band(cells, ErrorMap::new(band, along as usize, e)));
+    }
+    out
+}
+
+/// One side of a copied block's stitching band.
+enum Side {
+    /// The band's cells (canvas index, sample x, y), row by row, and the error
+    /// of continuing the reference into each.
+    Band(Vec<(usize, usize, usize)>, crate::seams::ErrorMap),
+    /// The reference's continuation leaves the sample after `along` rows: the
+    /// block keeps its square edge there.
+    SourceOut(usize),
+}
+
+/// Grey-level error charged per row of a side whose reference continuation
+/// leaves the sample (a square edge, no path).
+const SQUARE_EDGE_ERROR: f64 = 64.0;
+
+/// The error along the seams the reference block at `pos` would leave if
+/// copied into block `blk` and stitched (repetition control's seam filter,
+/// ARCHITECTURE §3.13): the optimal path's error on each side, and
+/// `SQUARE_EDGE_ERROR` per row of a side that cannot be stitched.
+fn seam_error(
+    canvas: &Canvas,
+    grid: &Grid,
+    blk: u32,
+    pos: [u32; 2],
+    ctx: &LevelContext,
+    known: &[bool],
+    band: usize,
+) -> f64 {
+    bands(canvas, grid, blk, pos, ctx, known, band)
+        .iter()
+        .map(|s| match s {
+            Side::Band(_, map) => crate::seams::optimal(map).cost(map),
+            Side::SourceOut(along) => SQUARE_EDGE_ERROR * *along as f64,
+        })
+        .sum()
+}
+
+/// Extends the block just copied into the already synthesised pixels around
+/// it, up to a minimum-error path (ARCHITECTURE §3.12; Somol–Haindl §2.1).
+/// Each side is a band `band` pixels wide and one block long outside the
+/// block; the error is the luminance difference between the canvas and the
+/// block's reference continued into the band; the optimal path over it
+/// decides, per row, how far the reference continues. Pixels are copied whole
+/// from the sample, so the copy map stays exact (no blending). A side is left
+/// as it is if any band pixel is outside the canvas, not yet defined, known
+/// before the search, or has no defined reference pixel. Bands stay inside the
+/// block's N×N window, which no other block of the batch overlaps, so the
+/// result does not depend on the order of the batch's copies.
+fn stitch_block(
+    canvas: &mut Canvas,
+    grid: &Grid,
+    blk: u32,
+    pos: [u32; 2],
+    ctx: &LevelContext,
+    known: &[bool],
+    band: usize,
+) {
+    let ls = ctx.sample;
+    for side in bands(canvas, grid, blk, pos, ctx, known, band) {
+        let Side::Band(cells, map) = side else {
+            continue;
+        };
+        let path = crate::seams::optimal(&map);
         for (j, &c) in path.c.iter().enumerate() {
             for &(k, sx, sy) in &cells[j * band..=j * band + c] {
                 set_pixel(canvas, k, ls, sx, sy);

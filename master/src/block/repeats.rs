@@ -21,6 +21,9 @@ pub struct RepeatControl {
     pub slack: u32,
     /// Near-tie slack in percent of the best distance.
     pub percent: u32,
+    /// Seam filter (path stitching only): only the near-ties whose stitched
+    /// seam error is within this percent of the least are picked from.
+    pub seam: Option<u32>,
 }
 
 impl Default for RepeatControl {
@@ -29,6 +32,7 @@ impl Default for RepeatControl {
             candidates: 8,
             slack: 0,
             percent: 10,
+            seam: None,
         }
     }
 }
@@ -49,6 +53,11 @@ impl RepeatControl {
             self.percent <= 1000,
             "--repeat-percent {} is too large; use 0..=1000",
             self.percent
+        );
+        anyhow::ensure!(
+            self.seam.is_none_or(|s| s <= 1000),
+            "--repeat-seam {} is too large; use 0..=1000",
+            self.seam.unwrap_or(0)
         );
         anyhow::ensure!(
             self.slack > 0 || self.percent > 0,
@@ -114,6 +123,26 @@ pub(super) fn pick(hits: &[Hit], mut block_use: impl FnMut(&Hit) -> u64) -> Opti
         .map(|(_, dist, index)| Hit { index, dist })
 }
 
+/// The pick with the seam filter: of the near-ties `hits`, those whose seam
+/// error (`seams[i]` for `hits[i]`) is within `percent` of the least, then
+/// [`pick`] among them. The least-error near-tie always qualifies.
+pub(super) fn pick_within_seam(
+    hits: &[Hit],
+    seams: &[f64],
+    percent: u32,
+    block_use: impl FnMut(&Hit) -> u64,
+) -> Option<Hit> {
+    let least = seams.iter().copied().fold(f64::INFINITY, f64::min);
+    let bound = least * (1.0 + f64::from(percent) / 100.0);
+    let eligible: Vec<Hit> = hits
+        .iter()
+        .zip(seams)
+        .filter(|(_, &e)| e <= bound)
+        .map(|(h, _)| *h)
+        .collect();
+    pick(&eligible, block_use)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -153,7 +182,54 @@ mod tests {
         assert_eq!(u.block([5, 3], 5), 9);
     }
 
+    #[test]
+    fn the_seam_filter_keeps_only_near_least_error_seams() {
+        let hits = [hit(5, 100), hit(2, 110), hit(9, 130), hit(1, 140)];
+        let seams = [40.0, 10.0, 11.0, 30.0];
+        let used = |h: &Hit| match h.index {
+            9 => 7,
+            _ => 0,
+        };
+        // Within 10%: hits 2 (10.0) and 9 (11.0); 9 is used more.
+        assert_eq!(pick_within_seam(&hits, &seams, 10, used), Some(hit(2, 110)));
+        // Within 0%: only the least error, however used.
+        let used_2 = |h: &Hit| u64::from(h.index == 2) * 50;
+        assert_eq!(
+            pick_within_seam(&hits, &seams, 0, used_2),
+            Some(hit(2, 110))
+        );
+        // Within 300%: everything; 5 is the nearest of the unused.
+        assert_eq!(
+            pick_within_seam(&hits, &seams, 300, used_2),
+            Some(hit(5, 100))
+        );
+        assert_eq!(pick_within_seam(&[], &[], 10, used), None);
+    }
+
     proptest! {
+        /// The seam-filtered pick has a seam within the bound, and no hit
+        /// within it is used less, or as little and nearer.
+        #[test]
+        fn seam_pick_is_the_least_used_within_the_bound(
+            mut d in prop::collection::vec(0u64..1000, 1..16),
+            seams in prop::collection::vec(0.0f64..500.0, 16),
+            uses in prop::collection::vec(0u64..50, 16),
+            percent in 0u32..200,
+        ) {
+            d.sort_unstable();
+            let hits: Vec<Hit> = d.iter().enumerate().map(|(i, &d)| hit(i as u64, d)).collect();
+            let seams = &seams[..hits.len()];
+            let used = |h: &Hit| uses[h.index as usize];
+            let p = pick_within_seam(&hits, seams, percent, used).unwrap();
+            let least = seams.iter().copied().fold(f64::INFINITY, f64::min);
+            let bound = least * (1.0 + f64::from(percent) / 100.0);
+            prop_assert!(seams[p.index as usize] <= bound);
+            for h in hits.iter().filter(|h| seams[h.index as usize] <= bound) {
+                prop_assert!(used(h) > used(&p) || (used(h) == used(&p) && h.key() >= p.key()));
+            }
+        }
+
+
         /// No near-tie is used less than the pick, and none used as little is
         /// nearer.
         #[test]

@@ -8,7 +8,9 @@ use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
 
-use super::block_args::{parse_position, ExtendArgs, FillArgs, MethodArg, SynthArgs};
+use super::block_args::{
+    config_with_stitch, parse_position, ExtendArgs, FillArgs, MethodArg, SynthArgs,
+};
 use super::parallel::DEFAULT_JITTER_ARG;
 use super::{parallel, parse_size, progress, Common, ParallelArgs};
 use crate::block::{self, Config, FillSource, Mode, Stitch, SynthMethod};
@@ -234,11 +236,8 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
     }
     ensure!(a.jitter.is_none(), "--jitter belongs to --method parallel");
     ensure!(a.start.is_none(), "--start belongs to --method parallel");
-    let mut cfg = Config::try_from(&a.common)?;
-    if a.common.stitch.is_none() {
-        // `synth`'s own default (ARCHITECTURE §3.12).
-        cfg.stitch = Stitch::Path;
-    }
+    // `synth`'s own stitching default is path (ARCHITECTURE §3.12).
+    let mut cfg = config_with_stitch(&a.common, Stitch::Path)?;
     let (width, height) = parse_size(&a.size)?;
     let mut level_files = Vec::new();
     for spec in &a.level_samples {
@@ -310,6 +309,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         ("--repeat-slack", c.repeat_slack.is_some()),
         ("--repeat-candidates", c.repeat_candidates.is_some()),
         ("--repeat-percent", c.repeat_percent.is_some()),
+        ("--repeat-seam", c.repeat_seam.is_some()),
         ("--no-repeat-control", c.no_repeat_control),
         ("--levels-dir", c.levels_dir.is_some()),
         ("--report", c.report.is_some()),

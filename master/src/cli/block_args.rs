@@ -74,6 +74,12 @@ pub struct Common {
     /// Repetition control: the best matches each block chooses from (2..=64).
     #[arg(long, value_name = "K")]
     pub repeat_candidates: Option<usize>,
+    /// Repetition control's seam filter (with `--stitch path`): choose only
+    /// among the near-ties whose stitched seam error is within this percent of
+    /// the least, so breaking a repeat costs no visible seam. Turns the
+    /// control on (with `--repeat-percent 150` unless given).
+    #[arg(long, value_name = "PERCENT")]
+    pub repeat_seam: Option<u32>,
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
     /// textures whose structure and colour disagree. Runs on this machine.
     #[arg(long)]
@@ -216,8 +222,15 @@ impl TryFrom<&Common> for Config {
     type Error = anyhow::Error;
 
     fn try_from(c: &Common) -> Result<Self> {
-        let d = Config::default();
-        let cfg = Config {
+        config_with_stitch(c, Config::default().stitch)
+    }
+}
+
+/// The validated config of the common flags, with `stitch` where `--stitch`
+/// is not given (each command's own default).
+pub fn config_with_stitch(c: &Common, stitch: block::Stitch) -> Result<Config> {
+    let d = Config::default();
+    let cfg = Config {
             block: c.block.unwrap_or(d.block),
             neighbourhood: match c.neighbourhood.as_deref() {
                 None => 11,
@@ -243,16 +256,19 @@ impl TryFrom<&Common> for Config {
             level_samples: Vec::new(),
             colour_search: c.colour_search,
             stitch: match c.stitch {
-                None => d.stitch,
+                None => stitch,
                 Some(StitchArg::Hard) => block::Stitch::Hard,
                 Some(StitchArg::Path) => block::Stitch::Path,
             },
             repeats: repeats(c, d.repeats)?,
         };
-        cfg.validate()?;
-        Ok(cfg)
-    }
+    cfg.validate()?;
+    Ok(cfg)
 }
+
+/// The near-tie slack the seam filter starts from: wide, since the filter
+/// keeps only near-tie seams.
+const SEAM_PERCENT: u32 = 150;
 
 /// The repetition control of `--repeat-slack`, `--repeat-percent`,
 /// `--repeat-candidates` and `--no-repeat-control` over the default.
@@ -260,12 +276,14 @@ fn repeats(
     c: &Common,
     default: Option<block::RepeatControl>,
 ) -> Result<Option<block::RepeatControl>> {
-    let given =
-        c.repeat_slack.is_some() || c.repeat_percent.is_some() || c.repeat_candidates.is_some();
+    let given = c.repeat_slack.is_some()
+        || c.repeat_percent.is_some()
+        || c.repeat_candidates.is_some()
+        || c.repeat_seam.is_some();
     if c.no_repeat_control {
         ensure!(
             !given,
-            "--no-repeat-control turns repetition control off; drop --repeat-slack, --repeat-percent and --repeat-candidates"
+            "--no-repeat-control turns repetition control off; drop --repeat-slack, --repeat-percent, --repeat-candidates and --repeat-seam"
         );
         return Ok(None);
     }
@@ -273,15 +291,21 @@ fn repeats(
         return Ok(default);
     }
     let base = default.unwrap_or_default();
+    let seam = c.repeat_seam.or(base.seam);
     let r = block::RepeatControl {
         slack: c.repeat_slack.unwrap_or(base.slack),
-        percent: c.repeat_percent.unwrap_or(base.percent),
+        percent: c.repeat_percent.unwrap_or(if seam.is_some() {
+            SEAM_PERCENT
+        } else {
+            base.percent
+        }),
         candidates: c.repeat_candidates.unwrap_or(base.candidates),
+        seam,
     };
     if r.slack == 0 && r.percent == 0 {
         ensure!(
-            c.repeat_candidates.is_none(),
-            "--repeat-candidates needs repetition control; drop it or give a slack above 0"
+            c.repeat_candidates.is_none() && c.repeat_seam.is_none(),
+            "--repeat-candidates and --repeat-seam need repetition control; drop them or give a slack above 0"
         );
         return Ok(None);
     }
