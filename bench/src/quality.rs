@@ -53,7 +53,7 @@ pub struct QualityArgs {
     /// parallel-5, parallel-7, somol, omega, morph, solid; and, only when
     /// named, block-scanline, block-hard and block-path (the two stitches;
     /// `synth`'s default is path), block-repeat (repetition control at 25%),
-    /// block-seam (repetition control with the seam filter, 15%, N = 13)
+    /// block-seam (repetition control with the seam filter, 25%, N = 13)
     /// and embark (Embark's texture-synthesis, the peer).
     #[arg(long, value_delimiter = ',', default_values_t = METHODS.map(String::from))]
     pub methods: Vec<String>,
@@ -245,7 +245,7 @@ impl Job<'_> {
                     "block-hard" => args.extend(["--stitch", "hard"]),
                     "block-path" => args.extend(["--stitch", "path"]),
                     "block-repeat" => args.extend(["--repeat-percent", "25"]),
-                    "block-seam" => args.extend(["--repeat-seam", "15", "--neighbourhood", "13"]),
+                    "block-seam" => args.extend(["--repeat-seam", "25", "--neighbourhood", "13"]),
                     _ => {}
                 }
                 let (t, m) = self.texsyn(&args)?;

@@ -22,7 +22,8 @@ pub struct RepeatControl {
     /// Near-tie slack in percent of the best distance.
     pub percent: u32,
     /// Seam filter (path stitching only): only the near-ties whose stitched
-    /// seam error is within this percent of the least are picked from.
+    /// seam error is at most this percent above the exact best's are picked
+    /// from.
     pub seam: Option<u32>,
 }
 
@@ -123,17 +124,20 @@ pub(super) fn pick(hits: &[Hit], mut block_use: impl FnMut(&Hit) -> u64) -> Opti
         .map(|(_, dist, index)| Hit { index, dist })
 }
 
-/// The pick with the seam filter: of the near-ties `hits`, those whose seam
-/// error (`seams[i]` for `hits[i]`) is within `percent` of the least, then
-/// [`pick`] among them. The least-error near-tie always qualifies.
+/// The pick with the seam filter: of the near-ties `hits` (sorted by
+/// distance), those whose seam error (`seams[i]` for `hits[i]`) is at most
+/// `percent` above the exact best's, then [`pick`] among them. The exact best
+/// always qualifies, and a near-tie with a worse seam never does: the bound is
+/// the best's seam, not the least seam, which would favour flat references
+/// (their seams are the smoothest) and erase thin structure.
 pub(super) fn pick_within_seam(
     hits: &[Hit],
     seams: &[f64],
     percent: u32,
     block_use: impl FnMut(&Hit) -> u64,
 ) -> Option<Hit> {
-    let least = seams.iter().copied().fold(f64::INFINITY, f64::min);
-    let bound = least * (1.0 + f64::from(percent) / 100.0);
+    let best = seams.first().copied().unwrap_or(f64::INFINITY);
+    let bound = best * (1.0 + f64::from(percent) / 100.0);
     let eligible: Vec<Hit> = hits
         .iter()
         .zip(seams)
@@ -183,26 +187,28 @@ mod tests {
     }
 
     #[test]
-    fn the_seam_filter_keeps_only_near_least_error_seams() {
+    fn the_seam_filter_is_bounded_by_the_exact_best_seam() {
         let hits = [hit(5, 100), hit(2, 110), hit(9, 130), hit(1, 140)];
-        let seams = [40.0, 10.0, 11.0, 30.0];
+        let seams = [20.0, 10.0, 23.0, 30.0];
         let used = |h: &Hit| match h.index {
-            9 => 7,
+            5 => 9,
+            2 => 7,
             _ => 0,
         };
-        // Within 10%: hits 2 (10.0) and 9 (11.0); 9 is used more.
+        // Within 10% of the best's 20.0: hits 5 and 2 (the better seam
+        // qualifies too); 2 is used less.
         assert_eq!(pick_within_seam(&hits, &seams, 10, used), Some(hit(2, 110)));
-        // Within 0%: only the least error, however used.
-        let used_2 = |h: &Hit| u64::from(h.index == 2) * 50;
+        // Within 20%: 9 (23.0) too, unused.
+        assert_eq!(pick_within_seam(&hits, &seams, 20, used), Some(hit(9, 130)));
+        // Within 0%: never a worse seam than the best's, however used.
+        let used_all = |h: &Hit| u64::from(h.index != 1 && h.index != 2) * 50;
         assert_eq!(
-            pick_within_seam(&hits, &seams, 0, used_2),
+            pick_within_seam(&hits, &seams, 0, used_all),
             Some(hit(2, 110))
         );
-        // Within 300%: everything; 5 is the nearest of the unused.
-        assert_eq!(
-            pick_within_seam(&hits, &seams, 300, used_2),
-            Some(hit(5, 100))
-        );
+        // The best always qualifies.
+        let worse = [20.0, 40.0, 50.0, 60.0];
+        assert_eq!(pick_within_seam(&hits, &worse, 10, used), Some(hit(5, 100)));
         assert_eq!(pick_within_seam(&[], &[], 10, used), None);
     }
 
@@ -221,8 +227,7 @@ mod tests {
             let seams = &seams[..hits.len()];
             let used = |h: &Hit| uses[h.index as usize];
             let p = pick_within_seam(&hits, seams, percent, used).unwrap();
-            let least = seams.iter().copied().fold(f64::INFINITY, f64::min);
-            let bound = least * (1.0 + f64::from(percent) / 100.0);
+            let bound = seams[0] * (1.0 + f64::from(percent) / 100.0);
             prop_assert!(seams[p.index as usize] <= bound);
             for h in hits.iter().filter(|h| seams[h.index as usize] <= bound) {
                 prop_assert!(used(h) > used(&p) || (used(h) == used(&p) && h.key() >= p.key()));

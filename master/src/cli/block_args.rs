@@ -75,9 +75,10 @@ pub struct Common {
     #[arg(long, value_name = "K")]
     pub repeat_candidates: Option<usize>,
     /// Repetition control's seam filter (with `--stitch path`): choose only
-    /// among the near-ties whose stitched seam error is within this percent of
-    /// the least, so breaking a repeat costs no visible seam. Turns the
-    /// control on (with `--repeat-percent 150` unless given).
+    /// among the near-ties whose stitched seam error is at most this percent
+    /// above the exact best match's, so breaking a repeat costs no worse seam
+    /// (e.g. 25, with --neighbourhood 13). Turns the control on (with
+    /// `--repeat-percent 150` unless given).
     #[arg(long, value_name = "PERCENT")]
     pub repeat_seam: Option<u32>,
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
