@@ -907,18 +907,41 @@ fn derived_tiles_share_little_more_than_the_template_s_ring_and_the_paper_s_band
     let band = somol_set(&sample, 80, true);
     let (ok_band, ob) = overlap_within_bound(&band.tiles);
     assert!(!ok_band, "the banded set should fail: tile_overlap {ob}");
-    // The tiles' edges are still the template's, so they all connect.
-    let (w, h) = (set.tiles[0].width, set.tiles[0].height);
+    // Every tile keeps the template's first column and row, so whatever
+    // lies right of or below a tile continues it as its own wrap does.
+    let t0 = &set.tiles[0];
+    let (w, h) = (t0.width, t0.height);
     for t in &set.tiles[1..] {
-        for x in 0..w {
-            assert_eq!(t.get(x, 0), set.tiles[0].get(x, 0));
-            assert_eq!(t.get(x, h - 1), set.tiles[0].get(x, h - 1));
-        }
-        for y in 0..h {
-            assert_eq!(t.get(0, y), set.tiles[0].get(0, y));
-            assert_eq!(t.get(w - 1, y), set.tiles[0].get(w - 1, y));
+        assert!((0..w).all(|x| t.get(x, 0) == t0.get(x, 0)));
+        assert!((0..h).all(|y| t.get(0, y) == t0.get(0, y)));
+    }
+    assert!(
+        set.derived.iter().any(|d| d.wrapped),
+        "no patch reached over the right and bottom edges"
+    );
+    let (ok, worst) = wraps_within_bound(&set.tiles);
+    assert!(ok, "a tile's wrap joints step {worst} × its interior");
+    // The planted defect: a patch pasted over the right edge unstitched.
+    let mut pasted = set.tiles.clone();
+    for y in 0..h {
+        for x in w - 3..w {
+            pasted[1].set(x, y, sample.get(x + 70, y + 50));
         }
     }
+    let (ok_pasted, wp) = wraps_within_bound(&pasted);
+    assert!(!ok_pasted, "the pasted edge should show: {wp}");
+}
+
+/// Whether no tile's wrap joints (which are its joints with any neighbour
+/// when all tiles share the template's first column and row) step more than
+/// its interior's median, or the template's own if that is more.
+fn wraps_within_bound(set: &[ColorImage]) -> (bool, f64) {
+    let bound = tiles::tileset::wrap_ratio(&set[0]).max(1.0);
+    let worst = set
+        .iter()
+        .map(tiles::tileset::wrap_ratio)
+        .fold(0.0, f64::max);
+    (worst <= bound, worst)
 }
 
 #[test]

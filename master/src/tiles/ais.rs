@@ -453,30 +453,42 @@ pub fn search(
         }
     }
     progress.finish();
-    let best = (0..np)
-        .max_by(|&a, &b| f[a].total_cmp(&f[b]).then(b.cmp(&a)))
-        .unwrap_or(0);
-    let (genes, best_f, polish_moves) = polish(
-        evaluator,
-        population[best].clone(),
-        f[best],
-        (u, side),
-        s.lambda,
-    )?;
+    // The descent starts from each of the best few distinct antibodies (a
+    // local optimum near the best may lie below one near the runner-up);
+    // the best outcome is kept, the first on ties.
+    sort_by_affinity(&mut population, &mut f);
+    let mut starts: Vec<usize> = Vec::new();
+    for i in 0..np {
+        if starts.len() >= POLISH_STARTS {
+            break;
+        }
+        if starts.iter().all(|&k| population[k] != population[i]) {
+            starts.push(i);
+        }
+    }
+    let search_f = f[0];
+    let mut best: Option<(Vec<Gene>, f64, usize)> = None;
+    for &i in &starts {
+        let p = polish(evaluator, population[i].clone(), f[i], (u, side), s.lambda)?;
+        if best.as_ref().is_none_or(|b| p.1 > b.1) {
+            best = Some(p);
+        }
+    }
+    let (genes, best_f, polish_moves) = best.unwrap_or((population[0].clone(), f[0], 0));
     Ok(AisResult {
         genes: genes
             .iter()
             .map(|&g| to_sample(g, evaluator.steps))
             .collect(),
         best_f,
-        search_f: f[best],
+        search_f,
         polish_moves,
         history,
         searches: evaluator.searches,
         seconds: t0.elapsed().as_secs_f64(),
     })
 }
-/// A closing descent on the best antibody (beyond the paper, which stops at
+/// A closing descent on one antibody (beyond the paper, which stops at
 /// the immune search): each gene in turn tries steps of 16, 8, 4, 2 and 1
 /// grid cells along each axis and keeps any that raises the affinity and
 /// keeps the patches clear of each other, until a round keeps none (at most
@@ -529,7 +541,10 @@ fn polish(
 }
 
 /// Rounds of the closing descent at most.
-const POLISH_ROUNDS: usize = 4;
+const POLISH_ROUNDS: usize = 8;
+
+/// Distinct antibodies of the last population the descent starts from.
+const POLISH_STARTS: usize = 4;
 
 /// `count` random patch sets in sample pixels, each colour's patch clear of
 /// the others' as in the search (the paper's "random" and "semi-random"

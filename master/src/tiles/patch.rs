@@ -12,7 +12,9 @@ use crate::imaging::ColorImage;
 pub struct PatchReport {
     /// The patch's rectangle in the sample.
     pub source: Rect,
-    /// Its rectangle in the tile.
+    /// Its rectangle in the tile; a patch that wraps (`DerivedTile::wrapped`)
+    /// is one pixel wider and taller than the tile, reaching into the next
+    /// tile's first column and row.
     pub target: Rect,
     /// ε of the four side paths.
     pub path_costs: [f64; 4],
@@ -76,6 +78,11 @@ fn patch_pixels(
 }
 
 /// The four side cuts of a patch of `source` placed at `target` in `tile`.
+/// With `wrap`, the target's last column and row are the tile's periodic
+/// continuation (the next tile's first column and row): the pull of the
+/// right and bottom paths aims one pixel inside them, so a path runs on the
+/// joint only where the patch continues into that column or row with less
+/// error than the pull.
 pub(super) fn patch_cuts(
     tile: &ColorImage,
     sample: &ColorImage,
@@ -83,12 +90,21 @@ pub(super) fn patch_cuts(
     target: Rect,
     belt: usize,
     settings: &StitchSettings,
+    wrap: bool,
 ) -> ([Belt; 4], Vec<Cut>) {
     let belts = side_belts(target, belt);
     let r1 = patch_pixels(sample, source, target);
+    let far = StitchSettings {
+        pull_inset: usize::from(wrap),
+        ..*settings
+    };
     let cuts = belts
         .iter()
-        .map(|b| stitch::find_cut(b, r1, |x, y| tile.get(x, y), settings))
+        .enumerate()
+        .map(|(k, b)| {
+            let s = if k % 2 == 1 { &far } else { settings };
+            stitch::find_cut(b, r1, |x, y| tile.get(x, y), s)
+        })
         .collect();
     (belts, cuts)
 }
@@ -110,7 +126,7 @@ pub(super) fn report(source: Rect, target: Rect, cuts: &[Cut]) -> PatchReport {
 /// the patch only where both side cuts give it to the patch, so the patch is
 /// bounded by one continuous path (the paper searches separate corner paths
 /// with fixed end points; the intersection keeps the same continuity without
-/// them). Nothing outside `target` changes.
+/// them). Nothing outside `target` changes. `wrap` as in [`patch_cuts`].
 pub fn insert_patch(
     tile: &mut ColorImage,
     sample: &ColorImage,
@@ -118,8 +134,9 @@ pub fn insert_patch(
     target: Rect,
     belt: usize,
     settings: &StitchSettings,
+    wrap: bool,
 ) -> PatchReport {
-    let (belts, cuts) = patch_cuts(tile, sample, source, target, belt, settings);
+    let (belts, cuts) = patch_cuts(tile, sample, source, target, belt, settings, wrap);
     let r1 = patch_pixels(sample, source, target);
     let mut out = tile.clone();
     for y in target.y..target.y + target.height {

@@ -55,6 +55,9 @@ pub struct StitchSettings {
     /// farther into R2 wins and R1 covers more; the cut's map, cost and
     /// blending keep the true error. 0 = the paper's search.
     pub pull: f32,
+    /// Columns short of the belt's outer edge that the pull aims at: the
+    /// search sees `pull · |w − 1 − inset − i|` (0 = the outer edge).
+    pub pull_inset: usize,
 }
 
 impl Default for StitchSettings {
@@ -67,6 +70,7 @@ impl Default for StitchSettings {
             search: Some(Oscillating::default()),
             rho: 3.0,
             pull: 0.0,
+            pull_inset: 0,
         }
     }
 }
@@ -103,11 +107,12 @@ pub fn find_cut(
         None => path::optimal(m),
     };
     let path = if settings.pull > 0.0 && w > 1 {
+        let aim = (w - 1).saturating_sub(settings.pull_inset);
         let biased: Vec<f32> = map
             .e
             .iter()
             .enumerate()
-            .map(|(k, &e)| e + settings.pull * (w - 1 - k % w) as f32)
+            .map(|(k, &e)| e + settings.pull * aim.abs_diff(k % w) as f32)
             .collect();
         search(&ErrorMap::new(w, h, biased))
     } else {

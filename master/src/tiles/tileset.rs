@@ -1,5 +1,6 @@
 //! Patched tile sets (Somol–Haindl §3): the template and tiles derived
-//! from it, each with one sample patch inserted inside its margin.
+//! from it, each with sample patches inserted over all but its first column
+//! and row.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -24,7 +25,8 @@ pub struct TileSetSettings {
     /// Template overlap `w_T` and patch belt `w_P`.
     pub overlap: usize,
     pub belt: usize,
-    /// Border strip of every tile that patches never touch.
+    /// Border strip of every tile that patches never touch (0: only the
+    /// first column and row, see [`make_tile_set`]).
     pub margin: usize,
     /// Pull of the patch paths towards the tile's edge, per pixel of the
     /// belt ([`StitchSettings::pull`]; 0 = the paper's search).
@@ -77,6 +79,10 @@ impl PathSearch {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct DerivedTile {
     pub patch: PatchReport,
+    /// Whether the patch reaches over the right and bottom edges into the
+    /// next tile's first column and row ([`make_tile_set`]).
+    #[serde(default)]
+    pub wrapped: bool,
     /// The extra patches inside the main one (large tiles).
     #[serde(default)]
     pub extra: Vec<PatchReport>,
@@ -220,6 +226,7 @@ fn by_score(a: &Scored, b: &Scored) -> std::cmp::Ordering {
 /// Where tile `k`'s patch comes from: the best of the seeded random
 /// candidates that overlaps no `taken` rectangle by more than a quarter,
 /// refined on its `±refine` neighbourhood; and the candidates' mean score.
+/// The cuts are made with `wrap` as in [`patch_cuts`].
 fn choose_patch(
     tile: &ColorImage,
     sample: &ColorImage,
@@ -227,13 +234,13 @@ fn choose_patch(
     taken: &[Rect],
     k: usize,
     s: &TileSetSettings,
-    stitch_settings: &StitchSettings,
+    (stitch_settings, wrap): (&StitchSettings, bool),
 ) -> (Rect, f64) {
     let mut rng =
         ChaCha8Rng::seed_from_u64(s.seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
     let score = |x: usize, y: usize| {
         let source = Rect { x, y, ..target };
-        let (_, cuts) = patch_cuts(tile, sample, source, target, s.belt, stitch_settings);
+        let (_, cuts) = patch_cuts(tile, sample, source, target, s.belt, stitch_settings, wrap);
         report(source, target, &cuts).mean_path_error
     };
     let (xs, ys) = (sample.width - target.width, sample.height - target.height);
@@ -323,6 +330,22 @@ fn extra_targets(tw: usize, th: usize, s: &TileSetSettings, k: usize) -> Vec<Rec
         .collect()
 }
 
+/// The `w`×`h` tile continued periodically by one column and one row:
+/// `(w + 1)`×`(h + 1)`, its last column the tile's first and its last row
+/// the tile's first. Every derived tile keeps the template's first column
+/// and row, so this continuation is what lies beyond its right and bottom
+/// edges in any arrangement of the set.
+pub fn wrap_extended(tile: &ColorImage) -> ColorImage {
+    let (w, h) = (tile.width, tile.height);
+    let mut out = ColorImage::new(w + 1, h + 1);
+    for y in 0..=h {
+        for x in 0..=w {
+            out.set(x, y, tile.get(x % w, y % h));
+        }
+    }
+    out
+}
+
 /// Tiles at least this large (their smaller side) get extra patches inside
 /// their main one, one per this many pixels of side, squared.
 pub const EXTRA_FROM: usize = 128;
@@ -337,11 +360,15 @@ pub const EXTRA_FROM: usize = 128;
 /// error along their four side paths; positions whose rectangle overlaps the
 /// template's source or an earlier patch by more than a quarter are passed
 /// over (so the tiles differ); the best is refined pixel by pixel on the
-/// `±refine` neighbourhood, as the paper does. The patch reaches to the
-/// `margin` and its paths are pulled towards the edge, so the tile's own
-/// content covers most of it (§4: "the patching process must affect most of
-/// the tile image surface"); large tiles then take half-size patches from
-/// yet other places inside it ([`extra_targets`]).
+/// `±refine` neighbourhood, as the paper does. With no `margin`, the patch
+/// covers the template continued by its first column and row
+/// ([`wrap_extended`]): every tile keeps only that column and row, which
+/// its right and bottom neighbours see, and its paths are pulled towards
+/// the edge, so the tile's own content covers most of it (§4: "the patching
+/// process must affect most of the tile image surface"). A tile whose wrap
+/// joints ([`wrap_ratio`]) step more than the template's, or its interior's
+/// median, takes the patch inside its own edges instead. Large tiles then
+/// take half-size patches from yet other places inside ([`extra_targets`]).
 pub fn make_tile_set(
     sample: &ColorImage,
     template: Option<&ColorImage>,
@@ -362,12 +389,22 @@ pub fn make_tile_set(
         s.margin,
         s.belt
     );
+    // With no margin, patches go into the template continued by its own
+    // first column and row, and reach into that continuation.
+    let wrap = s.margin == 0;
+    let canvas = if wrap {
+        wrap_extended(&tile0)
+    } else {
+        tile0.clone()
+    };
+    let (cw, ch) = (canvas.width, canvas.height);
     let target = Rect {
         x: s.margin,
         y: s.margin,
-        width: tw - 2 * s.margin,
-        height: th - 2 * s.margin,
+        width: cw - 2 * s.margin,
+        height: ch - 2 * s.margin,
     };
+    let joint_bound = wrap_ratio(&tile0).max(1.0);
     anyhow::ensure!(
         sample.width >= target.width && sample.height >= target.height,
         "the sample ({}x{}) is smaller than a patch ({}x{})",
@@ -385,15 +422,63 @@ pub fn make_tile_set(
     let mut derived = Vec::new();
     for k in 1..s.tiles {
         let t = std::time::Instant::now();
-        let (source, random_mean) =
-            choose_patch(&tile0, sample, target, &taken, k, s, &stitch_settings);
-        let mut tile = tile0.clone();
-        let patch = insert_patch(&mut tile, sample, source, target, s.belt, &stitch_settings);
+        let (source, random_mean) = choose_patch(
+            &canvas,
+            sample,
+            target,
+            &taken,
+            k,
+            s,
+            (&stitch_settings, wrap),
+        );
+        let mut tile = canvas.clone();
+        let mut patch = insert_patch(
+            &mut tile,
+            sample,
+            source,
+            target,
+            s.belt,
+            &stitch_settings,
+            wrap,
+        );
+        let wrapped = wrap && wrap_ratio(&tile.crop(0, 0, tw, th)) <= joint_bound;
+        if wrap && !wrapped {
+            // The patch's paths run on the joints where they show: the
+            // patch goes inside the tile's own edges instead.
+            tile = tile0.clone();
+            let inside = Rect {
+                width: tw,
+                height: th,
+                ..target
+            };
+            let from = Rect {
+                width: tw,
+                height: th,
+                ..source
+            };
+            patch = insert_patch(
+                &mut tile,
+                sample,
+                from,
+                inside,
+                s.belt,
+                &stitch_settings,
+                false,
+            );
+        }
         taken.push(source);
         let mut extra = Vec::new();
         for (e, inner) in extra_targets(tw, th, s, k).into_iter().enumerate() {
             let key = k + (e + 1) * 1000;
-            let (source, _) = choose_patch(&tile, sample, inner, &taken, key, s, &stitch_settings);
+            let (source, _) = choose_patch(
+                &tile,
+                sample,
+                inner,
+                &taken,
+                key,
+                s,
+                (&stitch_settings, false),
+            );
             extra.push(insert_patch(
                 &mut tile,
                 sample,
@@ -401,12 +486,14 @@ pub fn make_tile_set(
                 inner,
                 s.belt,
                 &stitch_settings,
+                false,
             ));
             taken.push(source);
         }
-        tiles.push(tile);
+        tiles.push(tile.crop(0, 0, tw, th));
         derived.push(DerivedTile {
             patch,
+            wrapped,
             extra,
             random_mean_path_error: random_mean,
             seconds: t.elapsed().as_secs_f64(),
