@@ -46,6 +46,10 @@ pub struct MatchArgs {
     /// Skip the recovery part.
     #[arg(long)]
     no_recovery: bool,
+    /// With --labels: print each photo's arrangement and its measures, and
+    /// match nothing.
+    #[arg(long)]
+    arrangement_only: bool,
     /// Print every trial that is not recovered: truth, match and both
     /// objectives.
     #[arg(long)]
@@ -53,6 +57,9 @@ pub struct MatchArgs {
 }
 
 pub fn run(a: &MatchArgs) -> Result<()> {
+    if let (true, Some(l)) = (a.arrangement_only, &a.labels) {
+        return arrangements(l, a.size);
+    }
     let t = Instant::now();
     let cat = Catalogue::build(
         &BuildSettings {
@@ -206,7 +213,7 @@ fn labelled(
     let dir = file.parent().unwrap_or(std::path::Path::new("."));
     println!("\nlabelled photos ({}), every shader:", file.display());
     println!(
-        "photo                          want                 count   found        count  error  right  seconds  cpu-s"
+        "photo                          want                 count   arrangement  found        count  error  right  seconds  cpu-s"
     );
     let (mut right, mut family, mut secs) = (0, 0, Vec::new());
     let mut rows = Vec::new();
@@ -216,15 +223,19 @@ fn labelled(
         let m = match_texture(&img, cat, settings)?;
         let cpu = cpu_seconds() - cpu;
         let v = labels::check(l, &m.pattern);
+        let (_, a) = texsyn::procedural::objective::periodicity_of(
+            &texsyn::procedural::analysis_image(&img, cat.size),
+        );
         right += usize::from(v.right);
         family += usize::from(v.family_right);
         secs.push(m.seconds);
         let num = |x: Option<f64>| x.map_or("-".to_string(), |c| format!("{c:.1}"));
         println!(
-            "{:<30} {:<20} {:>5}   {:<12} {:>5}  {:>5}  {:<5}  {:>7.1}  {:>5.1}",
+            "{:<30} {:<20} {:>5}   {:<11}  {:<12} {:>5}  {:>5}  {:<5}  {:>7.1}  {:>5.1}",
             l.file,
             l.families.join("|"),
             num(l.count),
+            a.arrangement.name(),
             m.pattern.shader.name,
             num(v.count),
             v.count_error
@@ -265,6 +276,31 @@ fn labelled(
         }
         imaging::save_color(&dir.join("sheet.png"), &sheet)?;
         println!("sheet: {}", dir.join("sheet.png").display());
+    }
+    Ok(())
+}
+
+/// Each labelled photo's arrangement and the measures it was decided from.
+fn arrangements(file: &std::path::Path, size: usize) -> Result<()> {
+    let text = std::fs::read_to_string(file)
+        .with_context(|| format!("cannot read the labels {}", file.display()))?;
+    let dir = file.parent().unwrap_or(std::path::Path::new("."));
+    println!("photo                          want                 arrangement  orient  second  lattice  frequency");
+    for l in labels::parse(&text)? {
+        let img = imaging::load_color(&dir.join(&l.file))?;
+        let (per, a) = texsyn::procedural::objective::periodicity_of(
+            &texsyn::procedural::analysis_image(&img, size),
+        );
+        println!(
+            "{:<30} {:<20} {:<11}  {:>6.2}  {:>6.2}  {:>7.2}  {:>9.1}",
+            l.file,
+            l.families.join("|"),
+            a.arrangement.name(),
+            a.orientation,
+            a.second,
+            a.lattice,
+            per.scale
+        );
     }
     Ok(())
 }

@@ -646,12 +646,23 @@ fn labelled_photos_seed_their_rows_and_a_planted_label_fails() {
     for l in &list {
         assert!(common::assets().join(&l.file).is_file(), "{}", l.file);
     }
+    // Structure first: the arrangement read before any shader is tried.
+    use texsyn::procedural::arrangement::Arrangement;
+    for (name, want) in [
+        ("tiles_color_256.png", Arrangement::Lattice),
+        ("rain_color_108.png", Arrangement::Parallel),
+        ("mossy_rock_color_128.png", Arrangement::Isotropic),
+    ] {
+        let img = texsyn::procedural::analysis_image(&common::texture(name), 128);
+        let (_, a) = periodicity_of(&img);
+        assert_eq!(a.arrangement, want, "{name}: {a:?}");
+    }
     let bricks = by_name("bricks").unwrap();
     let mid: Vec<f64> = bricks.params.iter().map(|p| p.from_unit(0.5)).collect();
     for name in ["brick_gray_256.png", "tiles_color_256.png"] {
         let l = list.iter().find(|l| l.file == name).unwrap();
         let img = texsyn::procedural::analysis_image(&common::texture(name), 128);
-        let params = seeded(bricks, &mid, &periodicity_of(&img)).expect("rows seen");
+        let params = seeded(bricks, &mid, &periodicity_of(&img).0).expect("rows seen");
         let found = Pattern {
             shader: bricks,
             params,

@@ -11,6 +11,8 @@
 //! - [`pattern`]: a shader with parameters and colours, rendered (§3.1).
 //! - [`periodicity`]: the target's periods, read from its autocorrelation:
 //!   the seeds of counts and angles and the structure term (§3.2.1, §3.3).
+//! - [`arrangement`]: lattice, parallel, scattered or unordered, from the
+//!   periods and the spectrum: the shaders the global search tries (§3.3).
 //! - [`colour`]: the closed-form two-colour fit (§3.2).
 //! - [`objective`]: what the local search minimises (§3.2.2).
 //! - [`search`]: global search by admissibility (§3.2.1), then [`local`]:
@@ -26,6 +28,7 @@
 //! [`crate::compare`], shared with `texsyn compare`.
 
 pub mod animate;
+pub mod arrangement;
 pub mod catalogue;
 pub mod colour;
 pub mod config;

@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use anyhow::{ensure, Result};
 use argmin::core::CostFunction;
 
+use super::arrangement::Analysis;
 use super::colour::ColourTarget;
 use super::descriptor::Structure;
 use super::periodicity::Periodicity;
@@ -33,11 +34,14 @@ pub fn analysis_image(img: &ColorImage, size: usize) -> ColorImage {
     ColorImage::from_vec(size, size, r.into_raw())
 }
 
-/// The periods of a square image's luminance.
-pub fn periodicity_of(img: &ColorImage) -> Periodicity {
+/// The periods of a square image's luminance and its arrangement.
+pub fn periodicity_of(img: &ColorImage) -> (Periodicity, Analysis) {
     let l = crate::imaging::colour::luminance(img);
     let v: Vec<f64> = l.data.iter().map(|&x| f64::from(x)).collect();
-    Periodicity::of_values(&v, l.width.min(l.height))
+    let n = l.width.min(l.height);
+    let per = Periodicity::of_values(&v, n);
+    let a = Analysis::of_values(&v, n, &per);
+    (per, a)
 }
 
 /// What the local search compares each render with.
@@ -49,6 +53,8 @@ pub struct Target {
     pub structure: Structure,
     /// The periods of the target's luminance (the structure seeds and term).
     pub periodicity: Periodicity,
+    /// How the target's features are arranged (the shaders tried).
+    pub arrangement: Analysis,
     pub colours: ColourTarget,
 }
 
@@ -63,11 +69,13 @@ impl Target {
         );
         let image = analysis_image(img, size);
         let descriptors = Descriptors::of(&image)?;
+        let (periodicity, arrangement) = periodicity_of(&image);
         Ok(Self {
             blurred: blurred_spectra(&descriptors),
             descriptors,
             structure: Structure::of_image(&image),
-            periodicity: periodicity_of(&image),
+            periodicity,
+            arrangement,
             colours: ColourTarget::of(&image),
             image,
         })

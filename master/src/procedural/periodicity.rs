@@ -41,9 +41,11 @@ pub struct Periodicity {
     /// Per direction k, at k·180/[`DIRECTIONS`] degrees from the x axis
     /// towards y (image rows go down): the first peak.
     pub lines: Vec<Peak>,
-    /// The first peak of the correlation averaged over all directions (the
-    /// spacing of scattered features).
+    /// The first peak of the correlation averaged over all directions.
     pub radial: Peak,
+    /// The features' frequency in cycles per image
+    /// ([`super::arrangement::feature_frequency`]; 0 for a flat image).
+    pub scale: f64,
 }
 
 impl Periodicity {
@@ -94,6 +96,7 @@ impl Periodicity {
             size: n,
             lines: profiles.iter().map(|p| first_peak(p)).collect(),
             radial: first_peak(&radial),
+            scale: super::arrangement::feature_frequency(v, n),
         }
     }
 
@@ -204,10 +207,28 @@ pub fn seeded(s: &Shader, base: &[f64], per: &Periodicity) -> Option<Vec<f64>> {
             p[angle] = a;
         }
         Layout::Scatter { count } => {
-            if !strong(&per.radial) {
+            // The count whose render has the target's feature frequency
+            // (the frequency of a count depends on the shader's other
+            // parameters, so it is measured, not assumed).
+            if per.scale <= 0.0 {
                 return None;
             }
-            p[count] = n / per.radial.period;
+            let spec = &s.params[count];
+            let size = per.size.clamp(8, 128);
+            let mut best = (f64::INFINITY, p[count]);
+            let mut c = spec.min.ceil();
+            while c <= spec.max {
+                p[count] = c;
+                let f = s.render_field(&p, size, size, size);
+                let v: Vec<f64> = f.iter().map(|&x| f64::from(x)).collect();
+                let got = super::arrangement::feature_frequency(&v, size);
+                let miss = (got / per.scale).ln().abs();
+                if got > 0.0 && miss < best.0 {
+                    best = (miss, c);
+                }
+                c += 1.0;
+            }
+            p[count] = best.1;
         }
     }
     Some(s.legal(&p))
@@ -344,6 +365,20 @@ mod tests {
             pl.distance(&pl2),
             pl.distance(&br)
         );
+    }
+
+    #[test]
+    fn scattered_features_seed_their_count() {
+        let n = 128;
+        for (name, truth) in [("cells", [9.0, 0.8, 0.7]), ("spots", [6.0, 0.3, 0.2])] {
+            let s = by_name(name).unwrap();
+            let f = s.render_field(&truth, n, n, n);
+            let per = Periodicity::of_field(&f, n);
+            let mut base = truth.to_vec();
+            base[0] = 3.0;
+            let p = seeded(s, &base, &per).expect("a feature frequency");
+            assert!((p[0] - truth[0]).abs() <= 1.0, "{name}: {p:?}");
+        }
     }
 
     #[test]

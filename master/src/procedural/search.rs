@@ -189,7 +189,7 @@ fn structure_term(sh: &Shader, params: &[f64], target: &Target) -> f64 {
 /// The global search: starting points per shader, in admissibility order.
 fn starting_points(cat: &Catalogue, target: &Target, s: &MatchSettings) -> Result<Vec<Start>> {
     let shaders = selected(s.shaders.as_deref())?;
-    tracing::debug!(periods = ?target.periodicity, "target periods");
+    tracing::debug!(periods = ?target.periodicity, arrangement = ?target.arrangement, "target structure");
     let mut per_shader = Vec::new();
     for sh in shaders {
         let Some(samples) = cat.of(sh.name) else {
@@ -275,8 +275,17 @@ fn starting_points(cat: &Catalogue, target: &Target, s: &MatchSettings) -> Resul
         !per_shader.is_empty(),
         "the catalogue has none of the selected shaders; rebuild it"
     );
-    // Families ranked by structure first: catalogue distance plus the
-    // structure term; the best few within the disparity go on.
+    // Structure first: only the shaders that show the target's
+    // arrangement (all when none of the selected does).
+    let arrangement = target.arrangement.arrangement;
+    if per_shader
+        .iter()
+        .any(|(_, c)| c[0].shader.shows.contains(&arrangement))
+    {
+        per_shader.retain(|(_, c)| c[0].shader.shows.contains(&arrangement));
+    }
+    // Families ranked by catalogue distance plus the structure term; the
+    // best few within the disparity go on.
     per_shader.sort_by(|a, b| a.0.total_cmp(&b.0));
     let best = per_shader[0].0;
     let mut starts: Vec<Start> = per_shader
@@ -323,11 +332,10 @@ pub(super) fn match_prepared(
 ) -> Result<MatchResult> {
     let starts = starting_points(cat, target, settings)?;
     let evals = AtomicU64::new(0);
-    // Several shaders: the search's effort goes to choosing the shader,
-    // whose counts and angles come seeded from the target's periods.
-    let several = starts
-        .iter()
-        .any(|x| x.shader.name != starts[0].shader.name);
+    // Several shaders selected: the search's effort goes to choosing the
+    // shader, whose counts and angles come seeded from the target's
+    // structure (even where the arrangement leaves one to try).
+    let several = selected(settings.shaders.as_deref())?.len() > 1;
     let (screen_iters, effort) = if several {
         (settings.max_iters.div_ceil(2), Effort::LIGHT)
     } else {

@@ -13,6 +13,7 @@ use ::noise::Perlin;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::arrangement::Arrangement::{self, Isotropic, Lattice, Parallel};
 use crate::imaging::ColorImage;
 
 /// How a parameter varies.
@@ -117,6 +118,8 @@ pub struct Shader {
     pub doc: &'static str,
     pub params: &'static [ParamSpec],
     pub layout: Layout,
+    /// The arrangements its patterns show (the targets it is tried on).
+    pub shows: &'static [Arrangement],
     pattern: fn(&[f64], &Perlin, f64, f64) -> f64,
     seed: u32,
 }
@@ -230,6 +233,7 @@ pub static LIBRARY: &[Shader] = &[
         doc: "fractal Perlin noise (fBm, 4 octaves)",
         params: CLOUDS,
         layout: Layout::Free,
+        shows: &[Isotropic],
         pattern: clouds,
         seed: 101,
     },
@@ -238,6 +242,7 @@ pub static LIBRARY: &[Shader] = &[
         doc: "sum of |Perlin noise| over 4 octaves: creased, fiery",
         params: CLOUDS,
         layout: Layout::Free,
+        shows: &[Isotropic],
         pattern: turbulence,
         seed: 202,
     },
@@ -246,6 +251,7 @@ pub static LIBRARY: &[Shader] = &[
         doc: "sine veins distorted by turbulence",
         params: MARBLE,
         layout: Layout::Lines { count: 0, angle: 1 },
+        shows: &[Parallel],
         pattern: marble,
         seed: 303,
     },
@@ -254,6 +260,7 @@ pub static LIBRARY: &[Shader] = &[
         doc: "noisy growth rings round an axis off the square",
         params: WOOD,
         layout: Layout::Free,
+        shows: &[Parallel],
         pattern: wood,
         seed: 404,
     },
@@ -262,6 +269,7 @@ pub static LIBRARY: &[Shader] = &[
         doc: "Worley noise: dots to cell walls",
         params: CELLS,
         layout: Layout::Scatter { count: 0 },
+        shows: &[Isotropic],
         pattern: cells,
         seed: 505,
     },
@@ -274,6 +282,7 @@ pub static LIBRARY: &[Shader] = &[
             aspect: Some(1),
             angle: Some(5),
         },
+        shows: &[Lattice],
         pattern: bricks,
         seed: 606,
     },
@@ -282,6 +291,7 @@ pub static LIBRARY: &[Shader] = &[
         doc: "soft round spots, one per jittered cell",
         params: SPOTS,
         layout: Layout::Scatter { count: 0 },
+        shows: &[Isotropic],
         pattern: spots,
         seed: 707,
     },
@@ -290,6 +300,7 @@ pub static LIBRARY: &[Shader] = &[
         doc: "straight stripes at any angle",
         params: STRIPES,
         layout: Layout::Lines { count: 0, angle: 1 },
+        shows: &[Parallel],
         pattern: stripes,
         seed: 808,
     },
@@ -302,6 +313,7 @@ pub static LIBRARY: &[Shader] = &[
             aspect: None,
             angle: None,
         },
+        shows: &[Lattice],
         pattern: stars,
         seed: 909,
     },
@@ -310,6 +322,7 @@ pub static LIBRARY: &[Shader] = &[
         doc: "parallel boards with staggered end joints and grain",
         params: PLANKS,
         layout: Layout::Lines { count: 0, angle: 1 },
+        shows: &[Parallel],
         pattern: planks,
         seed: 1010,
     },
