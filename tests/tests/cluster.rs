@@ -1148,24 +1148,18 @@ fn repetition_control_is_identical_over_threads_and_workers() {
         std::fs::read(&out).unwrap()
     };
     harness::binary("texsyn-worker");
+    let cluster = [
+        "--search",
+        "cluster,cluster,cluster",
+        "--local-workers",
+        "2",
+        "--require-cluster",
+    ];
     let control = ["--repeat-percent", "25"];
     let one = run("one", &[&control[..], &["--threads", "1"]].concat());
     let two = run("two", &[&control[..], &["--threads", "2"]].concat());
     assert!(one == two, "repetition control differs on 1 and 2 threads");
-    let workers = run(
-        "workers",
-        &[
-            &control[..],
-            &[
-                "--search",
-                "cluster,cluster,cluster",
-                "--local-workers",
-                "2",
-                "--require-cluster",
-            ],
-        ]
-        .concat(),
-    );
+    let workers = run("workers", &[&control[..], &cluster[..]].concat());
     assert!(
         one == workers,
         "repetition control differs on 2 local workers"
@@ -1176,20 +1170,7 @@ fn repetition_control_is_identical_over_threads_and_workers() {
     // on 2 workers, and a different pick from the same slack without it.
     let seam = ["--repeat-seam", "15"];
     let seam_one = run("seam-one", &[&seam[..], &["--threads", "1"]].concat());
-    let seam_workers = run(
-        "seam-workers",
-        &[
-            &seam[..],
-            &[
-                "--search",
-                "cluster,cluster,cluster",
-                "--local-workers",
-                "2",
-                "--require-cluster",
-            ],
-        ]
-        .concat(),
-    );
+    let seam_workers = run("seam-workers", &[&seam[..], &cluster[..]].concat());
     assert!(
         seam_one == seam_workers,
         "the seam filter differs on 2 local workers"

@@ -196,6 +196,9 @@ pub(super) fn fill_level(
         stats.queries += chosen.len() as u64;
         stats.batches += 1;
         for (&blk, hits) in chosen.iter().zip(&lists) {
+            // The seam filter's bands of the picked reference, kept for its
+            // stitch (copying the block leaves the bands outside it as they are).
+            let mut picked_bands = None;
             let hit = match (&usage, &ctx.cfg.repeats) {
                 (Some(u), Some(r)) => {
                     let block_use = |h: &Hit| {
@@ -205,15 +208,23 @@ pub(super) fn fill_level(
                     };
                     match (r.seam, &stitch) {
                         (Some(percent), Some((known, band))) => {
-                            let costs: Vec<f64> = hits
+                            let mut sides: Vec<Option<Vec<Side>>> = hits
                                 .iter()
                                 .map(|h| {
-                                    ctx.positions.get(h.index).map_or(f64::INFINITY, |p| {
-                                        seam_error(canvas, &grid, blk, p, ctx, known, *band)
-                                    })
+                                    ctx.positions
+                                        .get(h.index)
+                                        .map(|p| bands(canvas, &grid, blk, p, ctx, known, *band))
                                 })
                                 .collect();
-                            repeats::pick_within_seam(hits, &costs, percent, block_use)
+                            let costs: Vec<f64> = sides
+                                .iter()
+                                .map(|s| s.as_deref().map_or(f64::INFINITY, seam_error))
+                                .collect();
+                            let hit = repeats::pick_within_seam(hits, &costs, percent, block_use);
+                            picked_bands = hit
+                                .and_then(|h| hits.iter().position(|x| x.index == h.index))
+                                .and_then(|i| sides.swap_remove(i));
+                            hit
                         }
                         _ => repeats::pick(hits, block_use),
                     }
@@ -230,7 +241,9 @@ pub(super) fn fill_level(
             })?;
             copy_block(canvas, &grid, blk, pos, ctx, usage.as_mut());
             if let Some((known, band)) = &stitch {
-                stitch_block(canvas, &grid, blk, pos, ctx, known, *band);
+                let sides = picked_bands
+                    .unwrap_or_else(|| bands(canvas, &grid, blk, pos, ctx, known, *band));
+                stitch_block(canvas, ctx, sides, *band);
             }
             queue.remove(blk);
         }
@@ -480,20 +493,12 @@ enum Side {
 /// leaves the sample (a square edge, no path).
 const SQUARE_EDGE_ERROR: f64 = 64.0;
 
-/// The error along the seams the reference block at `pos` would leave if
-/// copied into block `blk` and stitched (repetition control's seam filter,
+/// The error along the seams a reference block would leave if copied and
+/// stitched, from its `bands` (repetition control's seam filter,
 /// ARCHITECTURE §3.13): the optimal path's error on each side, and
 /// `SQUARE_EDGE_ERROR` per row of a side that cannot be stitched.
-fn seam_error(
-    canvas: &Canvas,
-    grid: &Grid,
-    blk: u32,
-    pos: [u32; 2],
-    ctx: &LevelContext,
-    known: &[bool],
-    band: usize,
-) -> f64 {
-    bands(canvas, grid, blk, pos, ctx, known, band)
+fn seam_error(sides: &[Side]) -> f64 {
+    sides
         .iter()
         .map(|s| match s {
             Side::Band(_, map) => crate::seams::optimal(map).cost(map),
@@ -502,8 +507,8 @@ fn seam_error(
         .sum()
 }
 
-/// Extends the block just copied into the already synthesised pixels around
-/// it, up to a minimum-error path (ARCHITECTURE §3.12; Somol–Haindl §2.1).
+/// Extends the block just copied, whose `bands` are `sides`, into the already
+/// synthesised pixels around it, up to a minimum-error path (ARCHITECTURE §3.12; Somol–Haindl §2.1).
 /// Each side is a band `band` pixels wide and one block long outside the
 /// block; the error is the luminance difference between the canvas and the
 /// block's reference continued into the band; the optimal path over it
@@ -513,17 +518,9 @@ fn seam_error(
 /// before the search, or has no defined reference pixel. Bands stay inside the
 /// block's N×N window, which no other block of the batch overlaps, so the
 /// result does not depend on the order of the batch's copies.
-fn stitch_block(
-    canvas: &mut Canvas,
-    grid: &Grid,
-    blk: u32,
-    pos: [u32; 2],
-    ctx: &LevelContext,
-    known: &[bool],
-    band: usize,
-) {
+fn stitch_block(canvas: &mut Canvas, ctx: &LevelContext, sides: Vec<Side>, band: usize) {
     let ls = ctx.sample;
-    for side in bands(canvas, grid, blk, pos, ctx, known, band) {
+    for side in sides {
         let Side::Band(cells, map) = side else {
             continue;
         };
