@@ -17,7 +17,12 @@ const BLOCK: usize = 64;
 /// Parts of a keyed sweep per search thread: with the bounds shared between
 /// parts, finer parts cost little extra work and shorten the wait for the
 /// last one.
-const PARTS_PER_THREAD: usize = 8;
+const PARTS_PER_THREAD: usize = 16;
+/// Slots on each side of a query's key scored before the sweep: its seed.
+/// Near the key lie the vectors whose lo part sums like the query's, so the
+/// seed's best narrows the window before the sweep starts, whichever end of
+/// it the sweep (or a thread of it) begins with.
+const SEED: usize = 32;
 
 /// The vectors of a dense space in key order: keys, local indices and heads.
 #[derive(Debug, Clone)]
@@ -44,6 +49,42 @@ struct Probe<'a> {
 fn key_of(layout: &Layout, v: &[u8]) -> u64 {
     let lo = layout.hi_pad..layout.hi_pad + layout.lo_len;
     v[lo].iter().map(|&b| u64::from(b)).sum()
+}
+
+/// The parts in the order they are swept: those holding the most query keys
+/// first, where the best answers most likely lie, so that the bounds the parts
+/// share fall early; ties in slot order.
+fn nearest_first(mut cut: Vec<Range<usize>>, centres: &[usize]) -> Vec<Range<usize>> {
+    let held = |r: &Range<usize>| centres.iter().filter(|c| r.contains(c)).count();
+    cut.sort_by_cached_key(|r| (std::cmp::Reverse(held(r)), r.start));
+    cut
+}
+
+/// Runs `f` over `items` on `threads` rayon tasks that take the items in
+/// order, each the next one not yet taken: the first items start first
+/// whatever the number of threads. The results come back in item order.
+fn pull_in_order<T, R, F>(threads: usize, items: &[T], f: F) -> Vec<R>
+where
+    T: Sync,
+    R: Send,
+    F: Fn(&T) -> R + Sync,
+{
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let done: Vec<Vec<(usize, R)>> = (0..threads.clamp(1, items.len().max(1)))
+        .into_par_iter()
+        .map(|_| {
+            let mut mine = Vec::new();
+            loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(item) = items.get(i) else { break };
+                mine.push((i, f(item)));
+            }
+            mine
+        })
+        .collect();
+    let mut all: Vec<(usize, R)> = done.into_iter().flatten().collect();
+    all.sort_by_key(|(i, _)| *i);
+    all.into_iter().map(|(_, r)| r).collect()
 }
 
 impl KeyIndex {
@@ -119,30 +160,93 @@ impl KeyIndex {
         queries: &[(&[u8], &[u8])],
         start: &[Hit],
     ) -> (Vec<Hit>, PruneStats) {
-        let probes: Vec<Probe> = queries
-            .iter()
-            .zip(start)
+        let seeded: Vec<(Probe, PruneStats)> = queries
+            .par_iter()
+            .zip(start.par_iter())
             .map(|(&(q, m), &best)| {
                 let key = key_of(&sw.layout, q);
+                let (best, stats) = self.seed(sw, dense, q, m, key, best);
                 let window = self.window(key, Self::reach(sw, best.dist));
-                Probe {
+                let probe = Probe {
                     q,
                     m,
                     key,
                     best,
                     window,
-                }
+                };
+                (probe, stats)
             })
             .collect();
+        let mut seed_stats = PruneStats::default();
+        for (_, s) in &seeded {
+            seed_stats.add(s);
+        }
+        let probes: Vec<Probe> = seeded.into_iter().map(|(p, _)| p).collect();
+        let seeds: Vec<Hit> = probes.iter().map(|p| p.best).collect();
         let windows: Vec<Range<usize>> = probes.iter().map(|p| p.window.clone()).collect();
         let threads = rayon::current_num_threads().max(1);
         let cut = balanced_parts(&windows, threads * PARTS_PER_THREAD, sw.min_part.max(1));
-        let shared = Bounds::new(start);
-        let parts: Vec<(Vec<Hit>, PruneStats)> = cut
-            .into_par_iter()
-            .map(|part| self.sweep(sw, dense, probes.clone(), part, &shared))
+        let centres: Vec<usize> = probes
+            .iter()
+            .map(|p| self.keys.partition_point(|&k| u64::from(k) < p.key))
             .collect();
+        let cut = nearest_first(cut, &centres);
+        let shared = Bounds::new(&seeds);
+        let mut parts = pull_in_order(threads, &cut, |part| {
+            self.sweep(sw, dense, probes.clone(), part.clone(), &shared)
+        });
+        parts.push((seeds, seed_stats));
         merged(sw, start, &parts)
+    }
+
+    /// The best of `best` and the range's vectors in the [`SEED`] slots on
+    /// each side of `key`, with the pruning figures of scoring them (heads
+    /// first, as in the sweep). The seed only lowers the starting bound: the
+    /// sweep still visits every slot of the window, so the answer is the
+    /// exhaustive one.
+    fn seed(
+        &self,
+        sw: &Sweep,
+        dense: &Dense,
+        q: &[u8],
+        m: &[u8],
+        key: u64,
+        mut best: Hit,
+    ) -> (Hit, PruneStats) {
+        let _busy = crate::search::BusyTimer::start();
+        let (s, hb) = (sw.layout.stride(), self.hb);
+        let at = self.keys.partition_point(|&k| u64::from(k) < key);
+        let slots = at.saturating_sub(SEED)..(at + SEED).min(self.keys.len());
+        let local = (sw.range.start - dense.base) as usize..(sw.range.end - dense.base) as usize;
+        let mut stats = PruneStats::default();
+        let mut dist = [0u64; 2 * SEED];
+        let n = slots.len();
+        let heads = &self.heads.as_slice()[slots.start * hb..slots.end * hb];
+        let qh = &q[sw.layout.hi_pad..sw.layout.hi_pad + hb];
+        let wl = u64::from(sw.params.weights.lo);
+        sw.kernel
+            .heads(sw.params.metric, heads, hb, qh, wl, &mut dist);
+        stats.chunks += n as u64 * (hb / LANE) as u64;
+        for (k, &d) in dist[..n].iter().enumerate() {
+            let id = self.ids[slots.start + k] as usize;
+            if d > best.dist || !local.contains(&id) {
+                continue;
+            }
+            let v = &dense.data[id * s..(id + 1) * s];
+            let full = sw
+                .kernel
+                .finish(&sw.layout, &sw.params, hb, v, q, m, d, best.dist);
+            stats.pruned += 1;
+            stats.chunks += (s / LANE) as u64;
+            let hit = Hit {
+                index: dense.base + id as u64,
+                dist: full,
+            };
+            if full <= best.dist && hit.key() < best.key() {
+                best = hit;
+            }
+        }
+        (best, stats)
     }
 
     /// Sweeps the slots `part` for every probe whose window meets them, in
@@ -232,5 +336,57 @@ impl KeyIndex {
             }
         }
         (probes.iter().map(|p| p.best).collect(), stats)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{nearest_first, pull_in_order};
+    use proptest::prelude::*;
+    use std::ops::Range;
+
+    proptest! {
+        /// Every item runs once, the results come back in item order, and
+        /// the outcome does not depend on the number of threads.
+        #[test]
+        fn pulled_items_run_once_in_order(n in 0usize..200, threads in 1usize..5) {
+            let items: Vec<usize> = (0..n).collect();
+            let calls = std::sync::atomic::AtomicUsize::new(0);
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let out = pool.install(|| {
+                pull_in_order(threads, &items, |&i| {
+                    calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    i * 3
+                })
+            });
+            prop_assert_eq!(calls.into_inner(), n);
+            prop_assert_eq!(out, items.iter().map(|i| i * 3).collect::<Vec<_>>());
+        }
+
+        /// The order is a permutation of the cut, by query keys held
+        /// (most first), then by slot.
+        #[test]
+        fn parts_with_more_keys_come_first(
+            lens in proptest::collection::vec(1usize..50, 1..20),
+            centres in proptest::collection::vec(0usize..600, 0..40),
+        ) {
+            let mut at = 0;
+            let cut: Vec<Range<usize>> = lens
+                .iter()
+                .map(|&l| {
+                    at += l;
+                    at - l..at
+                })
+                .collect();
+            let order = nearest_first(cut.clone(), &centres);
+            let held = |r: &Range<usize>| centres.iter().filter(|c| r.contains(c)).count();
+            let mut sorted = order.clone();
+            sorted.sort_by_key(|r| r.start);
+            prop_assert_eq!(&sorted, &cut);
+            for w in order.windows(2) {
+                let (a, b) = (held(&w[0]), held(&w[1]));
+                prop_assert!(a > b || (a == b && w[0].start < w[1].start));
+            }
+        }
     }
 }

@@ -61,7 +61,7 @@ fn merged(sw: &Sweep, start: &[Hit], parts: &[(Vec<Hit>, PruneStats)]) -> (Vec<H
     let pairs = (sw.range.end - sw.range.start) * start.len() as u64;
     stats.pairs = pairs;
     stats.chunks_full = pairs * chunks;
-    stats.pruned = pairs - stats.pruned;
+    stats.pruned = pairs.saturating_sub(stats.pruned);
     (best, stats)
 }
 
