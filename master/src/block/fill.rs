@@ -399,8 +399,8 @@ fn stitch_band(b: usize, n: usize) -> usize {
 
 /// The stitching bands of the reference block at `pos` copied into block
 /// `blk` (ARCHITECTURE §3.12): up to four sides, each `band` pixels wide and
-/// one block long outside the block, with the luminance error of continuing
-/// the reference into each cell. A side is left out if any band pixel is
+/// one block long outside the block, with the optimal path over the
+/// luminance error of continuing the reference into each cell. A side is left out if any band pixel is
 /// outside the canvas, not yet defined or known before the search.
 fn bands(
     canvas: &Canvas,
@@ -474,16 +474,24 @@ fn bands(
             .iter()
             .map(|&(k, sx, sy)| f32::from(canvas.lum[k].abs_diff(ls.lum.get(sx, sy))))
             .collect();
-        out.push(Side::Band(cells, ErrorMap::new(band, along as usize, e)));
+        let map = ErrorMap::new(band, along as usize, e);
+        let path = crate::seams::optimal(&map);
+        let cost = path.cost(&map);
+        out.push(Side::Band { cells, path, cost });
     }
     out
 }
 
 /// One side of a copied block's stitching band.
 enum Side {
-    /// The band's cells (canvas index, sample x, y), row by row, and the error
-    /// of continuing the reference into each.
-    Band(Vec<(usize, usize, usize)>, crate::seams::ErrorMap),
+    /// The band's cells (canvas index, sample x, y), row by row; the optimal
+    /// path over the error of continuing the reference into each, and the
+    /// path's error.
+    Band {
+        cells: Vec<(usize, usize, usize)>,
+        path: crate::seams::Path,
+        cost: f64,
+    },
     /// The reference's continuation leaves the sample after `along` rows: the
     /// block keeps its square edge there.
     SourceOut(usize),
@@ -501,7 +509,7 @@ fn seam_error(sides: &[Side]) -> f64 {
     sides
         .iter()
         .map(|s| match s {
-            Side::Band(_, map) => crate::seams::optimal(map).cost(map),
+            Side::Band { cost, .. } => *cost,
             Side::SourceOut(along) => SQUARE_EDGE_ERROR * *along as f64,
         })
         .sum()
@@ -521,10 +529,9 @@ fn seam_error(sides: &[Side]) -> f64 {
 fn stitch_block(canvas: &mut Canvas, ctx: &LevelContext, sides: Vec<Side>, band: usize) {
     let ls = ctx.sample;
     for side in sides {
-        let Side::Band(cells, map) = side else {
+        let Side::Band { cells, path, .. } = side else {
             continue;
         };
-        let path = crate::seams::optimal(&map);
         for (j, &c) in path.c.iter().enumerate() {
             for &(k, sx, sy) in &cells[j * band..=j * band + c] {
                 set_pixel(canvas, k, ls, sx, sy);

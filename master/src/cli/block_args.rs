@@ -232,37 +232,40 @@ impl TryFrom<&Common> for Config {
 pub fn config_with_stitch(c: &Common, stitch: block::Stitch) -> Result<Config> {
     let d = Config::default();
     let cfg = Config {
-            block: c.block.unwrap_or(d.block),
-            neighbourhood: match c.neighbourhood.as_deref() {
-                None => 11,
-                Some(n) => n.trim().parse().with_context(|| {
-                    format!("--neighbourhood '{n}' is not a whole number; names like reduced or half belong to --method parallel")
-                })?,
-            },
-            parent_window: c.parent_window,
-            levels: c.levels.unwrap_or(d.levels),
-            weights: match &c.weights {
-                Some(w) => parse_weights(w)?,
-                None => d.weights,
-            },
-            metric: match c.metric {
-                None => d.metric,
-                Some(MetricArg::L1) => Metric::L1,
-                Some(MetricArg::L2) => Metric::L2,
-            },
-            tileable: c.tileable,
-            seed: c.seed,
-            batch: c.batch.unwrap_or(d.batch),
-            chroma_blur: c.chroma_blur,
-            level_samples: Vec::new(),
-            colour_search: c.colour_search,
-            stitch: match c.stitch {
-                None => stitch,
-                Some(StitchArg::Hard) => block::Stitch::Hard,
-                Some(StitchArg::Path) => block::Stitch::Path,
-            },
-            repeats: repeats(c, d.repeats)?,
-        };
+        block: c.block.unwrap_or(d.block),
+        neighbourhood: match c.neighbourhood.as_deref() {
+            None => 11,
+            Some(n) => n.trim().parse().with_context(|| {
+                format!(
+                    "--neighbourhood '{n}' is not a whole number; \
+                     names like reduced or half belong to --method parallel"
+                )
+            })?,
+        },
+        parent_window: c.parent_window,
+        levels: c.levels.unwrap_or(d.levels),
+        weights: match &c.weights {
+            Some(w) => parse_weights(w)?,
+            None => d.weights,
+        },
+        metric: match c.metric {
+            None => d.metric,
+            Some(MetricArg::L1) => Metric::L1,
+            Some(MetricArg::L2) => Metric::L2,
+        },
+        tileable: c.tileable,
+        seed: c.seed,
+        batch: c.batch.unwrap_or(d.batch),
+        chroma_blur: c.chroma_blur,
+        level_samples: Vec::new(),
+        colour_search: c.colour_search,
+        stitch: match c.stitch {
+            None => stitch,
+            Some(StitchArg::Hard) => block::Stitch::Hard,
+            Some(StitchArg::Path) => block::Stitch::Path,
+        },
+        repeats: repeats(c, d.repeats)?,
+    };
     cfg.validate()?;
     Ok(cfg)
 }

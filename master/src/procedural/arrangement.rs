@@ -16,11 +16,10 @@
 //! Each shader declares the arrangements its patterns show, and the global
 //! search tries only the shaders that show the target's.
 
-use rustfft::{num_complex::Complex, FftPlanner};
 use serde::Serialize;
 
 use super::periodicity::Periodicity;
-use crate::filters::fft2;
+use crate::compare::weighted_spectrum;
 
 /// How a texture's features are arranged.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -156,8 +155,10 @@ pub fn feature_frequency(v: &[f64], n: usize) -> f64 {
     }
 }
 
-/// The Hann-windowed power spectrum of `v` (`n`×`n`) times frequency²:
-/// (frequency in cycles per image, orientation in [0, π), energy) per bin.
+/// The Hann-windowed power spectrum of `v` (`n`×`n`) times frequency²
+/// (the square of [`weighted_spectrum`], up to its scale): (frequency in
+/// cycles per image, orientation in [0, π), energy) per bin. The window
+/// keeps the image's edges from drawing a cross into the spectrum.
 fn whitened_spectrum(v: &[f64], n: usize) -> Vec<(f64, f64, f64)> {
     if n < 8 || v.len() != n * n {
         return Vec::new();
@@ -166,12 +167,11 @@ fn whitened_spectrum(v: &[f64], n: usize) -> Vec<(f64, f64, f64)> {
     let hann: Vec<f64> = (0..n)
         .map(|i| 0.5 - 0.5 * (std::f64::consts::TAU * (i as f64 + 0.5) / n as f64).cos())
         .collect();
-    let mut buf: Vec<Complex<f64>> = (0..n * n)
-        .map(|i| Complex::new((v[i] - mean) * hann[i % n] * hann[i / n], 0.0))
+    let windowed: Vec<f64> = (0..n * n)
+        .map(|i| (v[i] - mean) * hann[i % n] * hann[i / n])
         .collect();
-    let mut planner = FftPlanner::new();
-    let plan = planner.plan_fft_forward(n);
-    fft2(&mut buf, (n, n), n, (&*plan, &*plan));
+    let spectrum = weighted_spectrum(&windowed, n, n);
+    // Signed bin in cycles per image (bins past n/2 are negative).
     let f = |k: usize| {
         if k > n / 2 {
             k as f64 - n as f64
@@ -179,16 +179,15 @@ fn whitened_spectrum(v: &[f64], n: usize) -> Vec<(f64, f64, f64)> {
             k as f64
         }
     };
-    let mut out = Vec::with_capacity(n * n);
-    for y in 0..n {
-        for x in 0..n {
-            let (fx, fy) = (f(x), f(y));
-            let r = fx.hypot(fy);
+    spectrum
+        .iter()
+        .enumerate()
+        .map(|(i, &m)| {
+            let (fx, fy) = (f(i % n), f(i / n));
             let a = fy.atan2(fx).rem_euclid(std::f64::consts::PI);
-            out.push((r, a, buf[y * n + x].norm_sqr() * r * r));
-        }
-    }
-    out
+            (fx.hypot(fy), a, m * m)
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -24,6 +24,26 @@ const PARTS_PER_THREAD: usize = 16;
 /// it the sweep (or a thread of it) begins with.
 const SEED: usize = 32;
 
+const _: () = assert!(2 * SEED <= BLOCK, "a seed is scored as one block");
+
+/// What scoring a block of slots for one probe works in: the heads'
+/// distances, the survivors, and the pruning figures so far.
+struct Scratch {
+    dist: [u64; BLOCK],
+    next: [u32; BLOCK],
+    stats: PruneStats,
+}
+
+impl Default for Scratch {
+    fn default() -> Self {
+        Self {
+            dist: [0; BLOCK],
+            next: [0; BLOCK],
+            stats: PruneStats::default(),
+        }
+    }
+}
+
 /// The vectors of a dense space in key order: keys, local indices and heads.
 #[derive(Debug, Clone)]
 pub(crate) struct KeyIndex {
@@ -160,36 +180,35 @@ impl KeyIndex {
         queries: &[(&[u8], &[u8])],
         start: &[Hit],
     ) -> (Vec<Hit>, PruneStats) {
-        let seeded: Vec<(Probe, PruneStats)> = queries
+        let seeded: Vec<(Probe, usize, PruneStats)> = queries
             .par_iter()
             .zip(start.par_iter())
             .map(|(&(q, m), &best)| {
                 let key = key_of(&sw.layout, q);
-                let (best, stats) = self.seed(sw, dense, q, m, key, best);
-                let window = self.window(key, Self::reach(sw, best.dist));
-                let probe = Probe {
+                let mut probe = Probe {
                     q,
                     m,
                     key,
                     best,
-                    window,
+                    window: 0..0,
                 };
-                (probe, stats)
+                let (centre, stats) = self.seed(sw, dense, &mut probe);
+                probe.window = self.window(key, Self::reach(sw, probe.best.dist));
+                (probe, centre, stats)
             })
             .collect();
         let mut seed_stats = PruneStats::default();
-        for (_, s) in &seeded {
-            seed_stats.add(s);
+        let mut centres = Vec::with_capacity(seeded.len());
+        let mut probes = Vec::with_capacity(seeded.len());
+        for (p, c, s) in seeded {
+            seed_stats.add(&s);
+            centres.push(c);
+            probes.push(p);
         }
-        let probes: Vec<Probe> = seeded.into_iter().map(|(p, _)| p).collect();
         let seeds: Vec<Hit> = probes.iter().map(|p| p.best).collect();
         let windows: Vec<Range<usize>> = probes.iter().map(|p| p.window.clone()).collect();
         let threads = rayon::current_num_threads().max(1);
         let cut = balanced_parts(&windows, threads * PARTS_PER_THREAD, sw.min_part.max(1));
-        let centres: Vec<usize> = probes
-            .iter()
-            .map(|p| self.keys.partition_point(|&k| u64::from(k) < p.key))
-            .collect();
         let cut = nearest_first(cut, &centres);
         let shared = Bounds::new(&seeds);
         let mut parts = pull_in_order(threads, &cut, |part| {
@@ -199,54 +218,80 @@ impl KeyIndex {
         merged(sw, start, &parts)
     }
 
-    /// The best of `best` and the range's vectors in the [`SEED`] slots on
-    /// each side of `key`, with the pruning figures of scoring them (heads
-    /// first, as in the sweep). The seed only lowers the starting bound: the
+    /// Lowers the probe's best with the range's vectors in the [`SEED`]
+    /// slots on each side of its key; returns the key's slot and the pruning
+    /// figures of scoring them. The seed only lowers the starting bound: the
     /// sweep still visits every slot of the window, so the answer is the
     /// exhaustive one.
-    fn seed(
+    fn seed(&self, sw: &Sweep, dense: &Dense, p: &mut Probe) -> (usize, PruneStats) {
+        let _busy = crate::search::BusyTimer::start();
+        let at = self.keys.partition_point(|&k| u64::from(k) < p.key);
+        let slots = at.saturating_sub(SEED)..(at + SEED).min(self.keys.len());
+        let mut scratch = Scratch::default();
+        let bound = p.best.dist;
+        self.score_slots(sw, dense, slots, p, bound, &mut scratch);
+        (at, scratch.stats)
+    }
+
+    /// Scores the slots `slots` (at most [`BLOCK`]) for probe `p`: heads
+    /// first, then in full the vectors of the range whose heads are within
+    /// `bound`. Lowers the probe's best with every hit that beats it within
+    /// the bound, and returns the bound after the slots.
+    fn score_slots(
         &self,
         sw: &Sweep,
         dense: &Dense,
-        q: &[u8],
-        m: &[u8],
-        key: u64,
-        mut best: Hit,
-    ) -> (Hit, PruneStats) {
-        let _busy = crate::search::BusyTimer::start();
+        slots: Range<usize>,
+        p: &mut Probe,
+        mut bound: u64,
+        w: &mut Scratch,
+    ) -> u64 {
         let (s, hb) = (sw.layout.stride(), self.hb);
-        let at = self.keys.partition_point(|&k| u64::from(k) < key);
-        let slots = at.saturating_sub(SEED)..(at + SEED).min(self.keys.len());
         let local = (sw.range.start - dense.base) as usize..(sw.range.end - dense.base) as usize;
-        let mut stats = PruneStats::default();
-        let mut dist = [0u64; 2 * SEED];
         let n = slots.len();
         let heads = &self.heads.as_slice()[slots.start * hb..slots.end * hb];
-        let qh = &q[sw.layout.hi_pad..sw.layout.hi_pad + hb];
+        let qh = &p.q[sw.layout.hi_pad..sw.layout.hi_pad + hb];
         let wl = u64::from(sw.params.weights.lo);
         sw.kernel
-            .heads(sw.params.metric, heads, hb, qh, wl, &mut dist);
-        stats.chunks += n as u64 * (hb / LANE) as u64;
-        for (k, &d) in dist[..n].iter().enumerate() {
-            let id = self.ids[slots.start + k] as usize;
-            if d > best.dist || !local.contains(&id) {
+            .heads(sw.params.metric, heads, hb, qh, wl, &mut w.dist);
+        w.stats.chunks += n as u64 * (hb / LANE) as u64;
+        // The survivors' vectors lie anywhere in the space: ask for all of
+        // their cache lines before scoring the first one.
+        let mut count = 0;
+        for (k, &d) in w.dist[..n].iter().enumerate() {
+            if d > bound {
                 continue;
             }
+            let id = self.ids[slots.start + k] as usize;
+            if local.contains(&id) {
+                prefetch(&dense.data[id * s..(id + 1) * s]);
+                w.next[count] = k as u32;
+                count += 1;
+            }
+        }
+        for &k in &w.next[..count] {
+            let (k, d) = (k as usize, w.dist[k as usize]);
+            if d > bound {
+                continue;
+            }
+            let id = self.ids[slots.start + k] as usize;
             let v = &dense.data[id * s..(id + 1) * s];
             let full = sw
                 .kernel
-                .finish(&sw.layout, &sw.params, hb, v, q, m, d, best.dist);
-            stats.pruned += 1;
-            stats.chunks += (s / LANE) as u64;
+                .finish(&sw.layout, &sw.params, hb, v, p.q, p.m, d, bound);
+            w.stats.pruned += 1;
+            w.stats.chunks += (s / LANE) as u64;
             let hit = Hit {
                 index: dense.base + id as u64,
                 dist: full,
             };
-            if full <= best.dist && hit.key() < best.key() {
-                best = hit;
+            // Above the bound `full` may be a partial sum: never an answer.
+            if full <= bound && hit.key() < p.best.key() {
+                p.best = hit;
+                bound = full;
             }
         }
-        (best, stats)
+        bound
     }
 
     /// Sweeps the slots `part` for every probe whose window meets them, in
@@ -261,15 +306,8 @@ impl KeyIndex {
         part: Range<usize>,
         shared: &Bounds,
     ) -> (Vec<Hit>, PruneStats) {
-        let s = sw.layout.stride();
-        let hb = self.hb;
-        let wl = u64::from(sw.params.weights.lo);
-        let chunks = (s / LANE) as u64;
-        let local = (sw.range.start - dense.base) as usize..(sw.range.end - dense.base) as usize;
         let _busy = crate::search::BusyTimer::start();
-        let mut stats = PruneStats::default();
-        let mut dist = [0u64; BLOCK];
-        let mut next = [0u32; BLOCK];
+        let mut scratch = Scratch::default();
         let mut a = part.start;
         while a < part.end {
             let block = a..(a + BLOCK).min(part.end);
@@ -281,51 +319,9 @@ impl KeyIndex {
                 }
                 // The best any part has found so far: vectors above it
                 // cannot win, whichever part holds them.
-                let bound = shared.get(i).min(p.best.dist);
-                let n = slots.len();
-                let heads = &self.heads.as_slice()[slots.start * hb..slots.end * hb];
-                let qh = &p.q[sw.layout.hi_pad..sw.layout.hi_pad + hb];
-                sw.kernel
-                    .heads(sw.params.metric, heads, hb, qh, wl, &mut dist);
-                stats.chunks += n as u64 * (hb / LANE) as u64;
-                // The survivors' vectors lie anywhere in the space: ask for
-                // all of their cache lines before scoring the first one.
-                let mut count = 0;
-                for (k, &d) in dist[..n].iter().enumerate() {
-                    if d > bound {
-                        continue;
-                    }
-                    let id = self.ids[slots.start + k] as usize;
-                    if local.contains(&id) {
-                        prefetch(&dense.data[id * s..(id + 1) * s]);
-                        next[count] = k as u32;
-                        count += 1;
-                    }
-                }
-                let mut bound = bound;
                 let before = p.best;
-                for &k in &next[..count] {
-                    let (k, d) = (k as usize, dist[k as usize]);
-                    if d > bound {
-                        continue;
-                    }
-                    let id = self.ids[slots.start + k] as usize;
-                    let v = &dense.data[id * s..(id + 1) * s];
-                    let full = sw
-                        .kernel
-                        .finish(&sw.layout, &sw.params, hb, v, p.q, p.m, d, bound);
-                    stats.pruned += 1;
-                    stats.chunks += chunks;
-                    let hit = Hit {
-                        index: dense.base + id as u64,
-                        dist: full,
-                    };
-                    // Above the bound `full` may be a partial sum: never an answer.
-                    if full <= bound && hit.key() < p.best.key() {
-                        p.best = hit;
-                        bound = full;
-                    }
-                }
+                let bound = shared.get(i).min(before.dist);
+                let bound = self.score_slots(sw, dense, slots, p, bound, &mut scratch);
                 if p.best.dist < before.dist {
                     shared.lower(i, p.best.dist);
                 }
@@ -335,7 +331,7 @@ impl KeyIndex {
                 }
             }
         }
-        (probes.iter().map(|p| p.best).collect(), stats)
+        (probes.iter().map(|p| p.best).collect(), scratch.stats)
     }
 }
 
