@@ -932,6 +932,35 @@ fn derived_tiles_share_little_more_than_the_template_s_ring_and_the_paper_s_band
     assert!(!ok_pasted, "the pasted edge should show: {wp}");
 }
 
+#[test]
+fn derived_tiles_take_distinct_patches_when_free_places_run_out() {
+    // A small sample: after a few tiles every place overlaps a taken one by
+    // more than a quarter, and the least-overlapping place is taken.
+    let sample = crop(&texture("gravel_gray_500.png"), 0, 0, 64, 64);
+    let mut s = tiles::SomolConfig {
+        tile_size: Some(40),
+        tiles: 32,
+        ..Default::default()
+    }
+    .settings(&sample, None)
+    .unwrap();
+    s.candidates = 12;
+    let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
+    let sources: Vec<_> = set
+        .derived
+        .iter()
+        .map(|d| (d.patch.source.x, d.patch.source.y))
+        .collect();
+    for (i, a) in sources.iter().enumerate() {
+        assert!(
+            !sources[..i].contains(a),
+            "two tiles take the patch at {a:?}: {sources:?}"
+        );
+    }
+    let (ok, worst) = wraps_within_bound(&set.tiles);
+    assert!(ok, "a tile's wrap joints step {worst} × its interior");
+}
+
 /// Whether no tile's wrap joints (which are its joints with any neighbour
 /// when all tiles share the template's first column and row) step more than
 /// its interior's median, or the template's own if that is more.
@@ -954,7 +983,7 @@ fn a_somol_grid_hides_its_joints_and_raw_crops_fail_the_same_bound() {
     let (ok_now, r) = joints_within_bound(&grid, w, h);
     assert!(ok_now, "joint ratio {r}");
     // The planted defect: tiles cut straight from the sample.
-    let raw: Vec<ColorImage> = [(0, 0), (60, 7), (13, 70), (64, 64)]
+    let raw: Vec<ColorImage> = [(0, 0), (60, 7), (13, 61), (64, 64)]
         .iter()
         .map(|&(x, y)| crop(&sample, x, y, w, h))
         .collect();

@@ -49,8 +49,9 @@ pub struct MakeArgs {
     /// Number of tiles, the template included.
     #[arg(long, default_value_t = SomolConfig::default().tiles)]
     pub tiles: usize,
-    /// Tile side: the template's size is searched in [0.8·S, S] (default: half
-    /// the sample's smaller side, at most 256).
+    /// Tile side: every tile is S×S. Without it the template's size is
+    /// searched in [0.8·S, S] for S half the sample's smaller side (at most
+    /// 256), as the paper chooses it.
     #[arg(long)]
     pub tile_size: Option<usize>,
     /// Overlap of the template's stitches (default: a tenth of the tile, as

@@ -19,7 +19,7 @@ pub mod set;
 #[cfg(test)]
 mod tests;
 
-pub use repetition::{copy_share, repeat_share, tile_overlap, CopyShare};
+pub use repetition::{copy_share, repeat_share, tile_overlap, tile_overlap_chance, CopyShare};
 
 use anyhow::{ensure, Result};
 use rustfft::{num_complex::Complex, FftPlanner};
@@ -74,6 +74,10 @@ pub struct GridScores {
     /// Mean over pairs of distinct tile images of the share of equal pixels
     /// (1 when every cell holds one image).
     pub tile_overlap: f64,
+    /// What unrelated tiles of the texture share by chance
+    /// ([`repetition::tile_overlap_chance`]); `tile_overlap` above it is
+    /// shared content.
+    pub tile_overlap_chance: f64,
     /// Whether the outer edge counts as a joint (a grid that wraps).
     pub wrap: bool,
 }
@@ -131,7 +135,7 @@ pub fn compare_with(a: &ColorImage, b: &ColorImage, grid: Option<Grid>) -> Resul
                 b.height
             );
             let cells = repetition::grid_cells(b, g.tile_width, g.tile_height);
-            let (distinct, overlap) = repetition::tile_measures(&cells);
+            let (distinct, overlap, chance) = repetition::tile_measures(&cells);
             let overlap = overlap.unwrap_or(0.0);
             (
                 grid_seam(b, g),
@@ -141,6 +145,7 @@ pub fn compare_with(a: &ColorImage, b: &ColorImage, grid: Option<Grid>) -> Resul
                     cells: cells.len(),
                     distinct_tiles: distinct,
                     tile_overlap: overlap,
+                    tile_overlap_chance: chance.unwrap_or(0.0),
                     wrap: g.wrap,
                 }),
             )

@@ -318,13 +318,24 @@ pub fn tile_overlap(tiles: &[ColorImage]) -> Option<f64> {
     tile_measures(tiles).1
 }
 
-/// The number of distinct tile images among `tiles` and their
-/// [`tile_overlap`], finding the distinct images once.
-pub fn tile_measures(tiles: &[ColorImage]) -> (usize, Option<f64>) {
+/// What unrelated tiles of the texture share by chance: the mean, over
+/// ordered pairs of distinct tile images, of the share of equal pixels
+/// between one tile and the other turned cyclically by half its size (so no
+/// band, row or patch of one meets its copy in the other). Flat, quantised
+/// samples score well above 0 here; [`tile_overlap`] above this is shared
+/// content. `None` for fewer than two distinct tiles.
+pub fn tile_overlap_chance(tiles: &[ColorImage]) -> Option<f64> {
+    tile_measures(tiles).2
+}
+
+/// The number of distinct tile images among `tiles`, their
+/// [`tile_overlap`] and [`tile_overlap_chance`], finding the distinct images
+/// once.
+pub fn tile_measures(tiles: &[ColorImage]) -> (usize, Option<f64>, Option<f64>) {
     let first = distinct_tiles(tiles);
     let count = first.iter().enumerate().filter(|&(i, &f)| i == f).count();
     if tiles.len() < 2 {
-        return (count, None);
+        return (count, None, None);
     }
     let distinct: Vec<Packed> = first
         .iter()
@@ -333,20 +344,33 @@ pub fn tile_measures(tiles: &[ColorImage]) -> (usize, Option<f64>) {
         .map(|(i, _)| Packed::of(&tiles[i]))
         .collect();
     if distinct.len() < 2 {
-        return (count, Some(1.0));
+        return (count, Some(1.0), None);
     }
-    let pairs: Vec<(usize, usize)> = (0..distinct.len())
-        .flat_map(|i| (i + 1..distinct.len()).map(move |j| (i, j)))
+    let n = distinct.len();
+    let (w, h) = (distinct[0].width, distinct[0].height);
+    let shared = |i: usize, j: usize, (dx, dy): (usize, usize)| {
+        let (p, q) = (&distinct[i].px, &distinct[j].px);
+        let equal = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .filter(|&(x, y)| p[y * w + x] == q[(y + dy) % h * w + (x + dx) % w])
+            .count();
+        equal as f64 / (w * h).max(1) as f64
+    };
+    let mean = |pairs: Vec<(usize, usize)>, shift: (usize, usize)| {
+        let total: f64 = pairs.par_iter().map(|&(i, j)| shared(i, j, shift)).sum();
+        total / pairs.len() as f64
+    };
+    let unordered = (0..n)
+        .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
         .collect();
-    let total: f64 = pairs
-        .par_iter()
-        .map(|&(i, j)| {
-            let (p, q) = (&distinct[i].px, &distinct[j].px);
-            let equal = p.iter().zip(q).filter(|(x, y)| x == y).count();
-            equal as f64 / p.len().max(1) as f64
-        })
-        .sum();
-    (count, Some(total / pairs.len() as f64))
+    let ordered = (0..n)
+        .flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j)))
+        .collect();
+    (
+        count,
+        Some(mean(unordered, (0, 0))),
+        Some(mean(ordered, (w / 2, h / 2))),
+    )
 }
 
 /// The full `tw`×`th` cells of a grid image, row by row.

@@ -33,6 +33,10 @@ pub struct SetScores {
     pub distinct_tiles: usize,
     /// Mean over pairs of distinct tile images of the share of equal pixels.
     pub tile_overlap: f64,
+    /// The same share between unrelated positions of the tiles (what the
+    /// texture's flat regions give by chance; see
+    /// [`super::repetition::tile_overlap_chance`]).
+    pub tile_overlap_chance: f64,
     /// ω-tiles: corner colours, each with its sample patch.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub colours: Option<usize>,
@@ -96,7 +100,7 @@ pub fn set_scores(dir: &Path) -> Result<SetScores> {
         "{} holds no tile_01.png: give a directory written by `texsyn tiles make`",
         dir.display()
     );
-    let (distinct, overlap) = tile_measures(&tiles);
+    let (distinct, overlap, chance) = tile_measures(&tiles);
     let omega = file.method == "omega";
     let (tw, th) = (file.tile_width, file.tile_height);
     let p = &file.patches;
@@ -112,6 +116,7 @@ pub fn set_scores(dir: &Path) -> Result<SetScores> {
         tiles: tiles.len(),
         distinct_tiles: distinct,
         tile_overlap: overlap.unwrap_or(0.0),
+        tile_overlap_chance: chance.unwrap_or(0.0),
         colours: omega.then_some(p.len()),
         distinct_patches: omega.then_some(distinct_patches),
         patch_overlap: omega.then(|| pairs.iter().sum::<f64>() / pairs.len().max(1) as f64),

@@ -32,7 +32,7 @@ pub const TEMPLATES: RangeInclusive<usize> = 1..=64;
 /// Largest pull of the patch paths, per pixel of the belt.
 pub const PULL_MAX: f32 = 1000.0;
 /// Pull of the patch paths towards the tile's edge by default.
-pub const DEFAULT_PULL: f32 = 8.0;
+pub const DEFAULT_PULL: f32 = 16.0;
 /// Border strip of every derived tile that stays the template's: one pixel,
 /// so both sides of every joint are the template's own continuation.
 pub const MARGIN: usize = 0;
@@ -138,6 +138,12 @@ impl SomolConfig {
             (None, Some(s)) => s,
             (None, None) => (sample.width.min(sample.height) / 2).min(256),
         };
+        // A tile side the user gave is the side of every tile; otherwise the
+        // template's side is chosen from 4/5 of the default to it (§3.1).
+        let min_size = match (template, self.tile_size) {
+            (None, Some(_)) => size,
+            _ => size * 4 / 5,
+        };
         let overlap = self.overlap.unwrap_or((size / 10).max(2));
         ensure!(
             2 * overlap < size,
@@ -152,7 +158,7 @@ impl SomolConfig {
         check_grid(self.tiles, 1, (size, size), atlas, &Budget::default())?;
         Ok(TileSetSettings {
             tiles: self.tiles,
-            min_size: (size * 4 / 5).max(2 * overlap + 1),
+            min_size: min_size.max(2 * overlap + 1),
             max_size: size,
             overlap,
             belt,
@@ -310,5 +316,11 @@ mod tests {
             (s.max_size, s.min_size, s.overlap, s.belt, s.margin),
             (100, 80, 10, 4, 0)
         );
+        let given = SomolConfig {
+            tile_size: Some(64),
+            ..Default::default()
+        };
+        let s = given.settings(&sample, None).unwrap();
+        assert_eq!((s.max_size, s.min_size), (64, 64), "a given side is kept");
     }
 }

@@ -216,17 +216,33 @@ fn template_tile(
     Ok((best.1, best.2, best.3))
 }
 
-/// A scored candidate: (mean path error, x, y).
-type Scored = (f64, usize, usize);
+/// A scored candidate: ((its wrap joints show, mean path error), x, y).
+type Scored = ((bool, f64), usize, usize);
 
 fn by_score(a: &Scored, b: &Scored) -> std::cmp::Ordering {
-    a.0.total_cmp(&b.0).then((a.1, a.2).cmp(&(b.1, b.2)))
+    (a.0 .0.cmp(&b.0 .0))
+        .then(a.0 .1.total_cmp(&b.0 .1))
+        .then((a.1, a.2).cmp(&(b.1, b.2)))
+}
+
+/// How a tile's patch is cut: the stitch settings, whether the patch wraps
+/// ([`patch_cuts`]), and the [`wrap_ratio`] the tile may reach with it (the
+/// tile is the canvas's top-left `tile` pixels).
+#[derive(Clone, Copy)]
+struct Cutting<'a> {
+    stitch: &'a StitchSettings,
+    wrap: bool,
+    joints: Option<(f64, (usize, usize))>,
 }
 
 /// Where tile `k`'s patch comes from: the best of the seeded random
 /// candidates that overlaps no `taken` rectangle by more than a quarter,
-/// refined on its `±refine` neighbourhood; and the candidates' mean score.
-/// The cuts are made with `wrap` as in [`patch_cuts`].
+/// refined pixel by pixel on its `±refine` neighbourhood; and the
+/// candidates' mean path error. With a joint bound, each candidate is also
+/// inserted, and those whose tile's wrap joints step more than the bound
+/// rank after all whose joints hold, so a wrapping patch reaches the tile's
+/// edges wherever some candidate can. The second value says whether the
+/// chosen one's joints hold.
 fn choose_patch(
     tile: &ColorImage,
     sample: &ColorImage,
@@ -234,37 +250,56 @@ fn choose_patch(
     taken: &[Rect],
     k: usize,
     s: &TileSetSettings,
-    (stitch_settings, wrap): (&StitchSettings, bool),
-) -> (Rect, f64) {
+    cutting: Cutting,
+) -> (Rect, bool, f64) {
     let mut rng =
         ChaCha8Rng::seed_from_u64(s.seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let wrap = cutting.wrap;
     let score = |x: usize, y: usize| {
         let source = Rect { x, y, ..target };
-        let (_, cuts) = patch_cuts(tile, sample, source, target, s.belt, stitch_settings, wrap);
-        report(source, target, &cuts).mean_path_error
+        let (_, cuts) = patch_cuts(tile, sample, source, target, s.belt, cutting.stitch, wrap);
+        let error = report(source, target, &cuts).mean_path_error;
+        let shows = cutting.joints.is_some_and(|(bound, (tw, th))| {
+            let mut t = tile.clone();
+            insert_patch(&mut t, sample, source, target, s.belt, cutting.stitch, wrap);
+            wrap_ratio(&t.crop(0, 0, tw, th)) > bound
+        });
+        ((shows, error), x, y)
     };
     let (xs, ys) = (sample.width - target.width, sample.height - target.height);
     let positions: Vec<(usize, usize)> = (0..s.candidates.max(1))
         .map(|_| (rng.random_range(0..=xs), rng.random_range(0..=ys)))
         .collect();
-    let scored: Vec<Scored> = positions
-        .par_iter()
-        .map(|&(x, y)| (score(x, y), x, y))
-        .collect();
-    let random_mean = scored.iter().map(|c| c.0).sum::<f64>() / scored.len() as f64;
+    let scored: Vec<Scored> = positions.par_iter().map(|&(x, y)| score(x, y)).collect();
+    let random_mean = scored.iter().map(|c| c.0 .1).sum::<f64>() / scored.len() as f64;
     let area = target.width * target.height;
-    let free = |x: usize, y: usize| {
+    let overlap = |x: usize, y: usize| {
         let r = Rect { x, y, ..target };
-        taken.iter().all(|o| r.intersection_area(o) * 4 <= area)
+        taken
+            .iter()
+            .map(|o| r.intersection_area(o))
+            .max()
+            .unwrap_or(0)
     };
-    // The best free candidate, or the best of all if none is free.
+    let free = |x: usize, y: usize| overlap(x, y) * 4 <= area;
+    // The best free candidate, or if none is free, a place no tile took,
+    // among those whose joints hold where possible, the one that overlaps
+    // the taken rectangles least.
+    let taken_already = |c: &Scored| overlap(c.1, c.2) == area;
     let pick = scored
         .iter()
         .filter(|c| free(c.1, c.2))
         .min_by(|a, b| by_score(a, b))
-        .or_else(|| scored.iter().min_by(|a, b| by_score(a, b)))
+        .or_else(|| {
+            scored.iter().min_by(|a, b| {
+                (taken_already(a).cmp(&taken_already(b)))
+                    .then(a.0 .0.cmp(&b.0 .0))
+                    .then(overlap(a.1, a.2).cmp(&overlap(b.1, b.2)))
+                    .then(by_score(a, b))
+            })
+        })
         .copied()
-        .unwrap_or((f64::INFINITY, 0, 0));
+        .unwrap_or(((true, f64::INFINITY), 0, 0));
     // Local refinement on the ±refine neighbourhood, pixel by pixel (so
     // periodic structure can line up with the template's).
     let (x0, y0) = (pick.1, pick.2);
@@ -275,7 +310,7 @@ fn choose_patch(
         .collect();
     let best = near
         .par_iter()
-        .map(|&(x, y)| (score(x, y), x, y))
+        .map(|&(x, y)| score(x, y))
         .chain(rayon::iter::once(pick))
         .min_by(by_score)
         .unwrap_or(pick);
@@ -285,6 +320,7 @@ fn choose_patch(
             y: best.2,
             ..target
         },
+        !best.0 .0,
         random_mean,
     )
 }
@@ -422,15 +458,14 @@ pub fn make_tile_set(
     let mut derived = Vec::new();
     for k in 1..s.tiles {
         let t = std::time::Instant::now();
-        let (source, random_mean) = choose_patch(
-            &canvas,
-            sample,
-            target,
-            &taken,
-            k,
-            s,
-            (&stitch_settings, wrap),
-        );
+        let cutting = Cutting {
+            stitch: &stitch_settings,
+            wrap,
+            joints: Some((joint_bound, (tw, th))),
+        };
+        let (mut source, holds, random_mean) =
+            choose_patch(&canvas, sample, target, &taken, k, s, cutting);
+        let wrapped = wrap && holds;
         let mut tile = canvas.clone();
         let mut patch = insert_patch(
             &mut tile,
@@ -441,25 +476,24 @@ pub fn make_tile_set(
             &stitch_settings,
             wrap,
         );
-        let wrapped = wrap && wrap_ratio(&tile.crop(0, 0, tw, th)) <= joint_bound;
         if wrap && !wrapped {
-            // The patch's paths run on the joints where they show: the
-            // patch goes inside the tile's own edges instead.
+            // No wrapping patch keeps the joints: the patch goes inside the tile's own edges instead, chosen
+            // again so that the tile's wrap joints hold with it too.
             tile = tile0.clone();
             let inside = Rect {
                 width: tw,
                 height: th,
                 ..target
             };
-            let from = Rect {
-                width: tw,
-                height: th,
-                ..source
+            let cutting = Cutting {
+                wrap: false,
+                ..cutting
             };
+            (source, _, _) = choose_patch(&tile0, sample, inside, &taken, k, s, cutting);
             patch = insert_patch(
                 &mut tile,
                 sample,
-                from,
+                source,
                 inside,
                 s.belt,
                 &stitch_settings,
@@ -470,15 +504,12 @@ pub fn make_tile_set(
         let mut extra = Vec::new();
         for (e, inner) in extra_targets(tw, th, s, k).into_iter().enumerate() {
             let key = k + (e + 1) * 1000;
-            let (source, _) = choose_patch(
-                &tile,
-                sample,
-                inner,
-                &taken,
-                key,
-                s,
-                (&stitch_settings, false),
-            );
+            let cutting = Cutting {
+                stitch: &stitch_settings,
+                wrap: false,
+                joints: None,
+            };
+            let (source, _, _) = choose_patch(&tile, sample, inner, &taken, key, s, cutting);
             extra.push(insert_patch(
                 &mut tile,
                 sample,
