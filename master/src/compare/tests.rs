@@ -199,6 +199,30 @@ fn tile_overlap_ranks_one_tile_above_a_shared_band_above_free_tiles() {
 }
 
 #[test]
+fn tile_overlap_chance_is_what_unrelated_tiles_of_a_flat_texture_share() {
+    // Free tiles of two grey levels share half their pixels by chance; of
+    // full-range noise, almost none. A band shared by all tiles raises the
+    // overlap but not the chance.
+    let two_levels = |seed: u64| {
+        let n = noise(40, 40, 255, seed);
+        let rgb = n.rgb.chunks(3).flat_map(|p| [p[0] & 0x80; 3]).collect();
+        ColorImage::from_vec(40, 40, rgb)
+    };
+    let flat: Vec<ColorImage> = (10..18).map(two_levels).collect();
+    let chance = tile_overlap_chance(&flat).unwrap();
+    assert!((chance - 0.5).abs() < 0.05, "{chance}");
+    let overlap = tile_overlap(&flat).unwrap();
+    assert!((overlap - chance).abs() < 0.05, "{overlap} {chance}");
+    let band = banded_tiles(40, 4);
+    let (b, bc) = (
+        tile_overlap(&band).unwrap(),
+        tile_overlap_chance(&band).unwrap(),
+    );
+    assert!(b > 0.09 && bc < 0.01, "band {b}, chance {bc}");
+    assert_eq!(tile_overlap_chance(&[noise(8, 8, 255, 1)]), None);
+}
+
+#[test]
 fn grid_seams_count_real_joints_only() {
     // An image cut into cells in order: its joints are invisible, but its
     // outer edge does not continue (it does not wrap).
