@@ -78,11 +78,11 @@ fn patch_pixels(
 }
 
 /// The four side cuts of a patch of `source` placed at `target` in `tile`.
-/// With `wrap`, the target's last column and row are the tile's periodic
-/// continuation (the next tile's first column and row): the pull of the
-/// right and bottom paths aims one pixel inside them, so a path runs on the
-/// joint only where the patch continues into that column or row with less
-/// error than the pull.
+/// Where the target's last column and row are the tile's periodic
+/// continuation (the next tile's first column and row, a patch that wraps),
+/// the pull of the right and bottom paths aims at them: a path pixel keeps
+/// the canvas's colour, so a path there leaves the whole tile to the patch,
+/// and its cost is the error against the real neighbour.
 pub(super) fn patch_cuts(
     tile: &ColorImage,
     sample: &ColorImage,
@@ -90,21 +90,12 @@ pub(super) fn patch_cuts(
     target: Rect,
     belt: usize,
     settings: &StitchSettings,
-    wrap: bool,
 ) -> ([Belt; 4], Vec<Cut>) {
     let belts = side_belts(target, belt);
     let r1 = patch_pixels(sample, source, target);
-    let far = StitchSettings {
-        pull_inset: usize::from(wrap),
-        ..*settings
-    };
     let cuts = belts
         .iter()
-        .enumerate()
-        .map(|(k, b)| {
-            let s = if k % 2 == 1 { &far } else { settings };
-            stitch::find_cut(b, r1, |x, y| tile.get(x, y), s)
-        })
+        .map(|b| stitch::find_cut(b, r1, |x, y| tile.get(x, y), settings))
         .collect();
     (belts, cuts)
 }
@@ -126,7 +117,7 @@ pub(super) fn report(source: Rect, target: Rect, cuts: &[Cut]) -> PatchReport {
 /// the patch only where both side cuts give it to the patch, so the patch is
 /// bounded by one continuous path (the paper searches separate corner paths
 /// with fixed end points; the intersection keeps the same continuity without
-/// them). Nothing outside `target` changes. `wrap` as in [`patch_cuts`].
+/// them). Nothing outside `target` changes.
 pub fn insert_patch(
     tile: &mut ColorImage,
     sample: &ColorImage,
@@ -134,9 +125,8 @@ pub fn insert_patch(
     target: Rect,
     belt: usize,
     settings: &StitchSettings,
-    wrap: bool,
 ) -> PatchReport {
-    let (belts, cuts) = patch_cuts(tile, sample, source, target, belt, settings, wrap);
+    let (belts, cuts) = patch_cuts(tile, sample, source, target, belt, settings);
     let r1 = patch_pixels(sample, source, target);
     let mut out = tile.clone();
     for y in target.y..target.y + target.height {

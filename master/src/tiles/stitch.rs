@@ -55,9 +55,6 @@ pub struct StitchSettings {
     /// farther into R2 wins and R1 covers more; the cut's map, cost and
     /// blending keep the true error. 0 = the paper's search.
     pub pull: f32,
-    /// Columns short of the belt's outer edge that the pull aims at: the
-    /// search sees `pull · |w − 1 − inset − i|` (0 = the outer edge).
-    pub pull_inset: usize,
 }
 
 impl Default for StitchSettings {
@@ -70,7 +67,6 @@ impl Default for StitchSettings {
             search: Some(Oscillating::default()),
             rho: 3.0,
             pull: 0.0,
-            pull_inset: 0,
         }
     }
 }
@@ -107,7 +103,7 @@ pub fn find_cut(
         None => path::optimal(m),
     };
     let path = if settings.pull > 0.0 && w > 1 {
-        let aim = (w - 1).saturating_sub(settings.pull_inset);
+        let aim = w - 1;
         let biased: Vec<f32> = map
             .e
             .iter()

@@ -225,13 +225,12 @@ fn by_score(a: &Scored, b: &Scored) -> std::cmp::Ordering {
         .then((a.1, a.2).cmp(&(b.1, b.2)))
 }
 
-/// How a tile's patch is cut: the stitch settings, whether the patch wraps
-/// ([`patch_cuts`]), and the [`wrap_ratio`] the tile may reach with it (the
-/// tile is the canvas's top-left `tile` pixels).
+/// How a tile's patch is cut: the stitch settings, and the [`wrap_ratio`]
+/// the tile may reach with it (the tile is the canvas's top-left `tile`
+/// pixels).
 #[derive(Clone, Copy)]
 struct Cutting<'a> {
     stitch: &'a StitchSettings,
-    wrap: bool,
     joints: Option<(f64, (usize, usize))>,
 }
 
@@ -254,14 +253,13 @@ fn choose_patch(
 ) -> (Rect, bool, f64) {
     let mut rng =
         ChaCha8Rng::seed_from_u64(s.seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-    let wrap = cutting.wrap;
     let score = |x: usize, y: usize| {
         let source = Rect { x, y, ..target };
-        let (_, cuts) = patch_cuts(tile, sample, source, target, s.belt, cutting.stitch, wrap);
+        let (_, cuts) = patch_cuts(tile, sample, source, target, s.belt, cutting.stitch);
         let error = report(source, target, &cuts).mean_path_error;
         let shows = cutting.joints.is_some_and(|(bound, (tw, th))| {
             let mut t = tile.clone();
-            insert_patch(&mut t, sample, source, target, s.belt, cutting.stitch, wrap);
+            insert_patch(&mut t, sample, source, target, s.belt, cutting.stitch);
             wrap_ratio(&t.crop(0, 0, tw, th)) > bound
         });
         ((shows, error), x, y)
@@ -460,22 +458,13 @@ pub fn make_tile_set(
         let t = std::time::Instant::now();
         let cutting = Cutting {
             stitch: &stitch_settings,
-            wrap,
             joints: Some((joint_bound, (tw, th))),
         };
         let (mut source, holds, random_mean) =
             choose_patch(&canvas, sample, target, &taken, k, s, cutting);
         let wrapped = wrap && holds;
         let mut tile = canvas.clone();
-        let mut patch = insert_patch(
-            &mut tile,
-            sample,
-            source,
-            target,
-            s.belt,
-            &stitch_settings,
-            wrap,
-        );
+        let mut patch = insert_patch(&mut tile, sample, source, target, s.belt, &stitch_settings);
         if wrap && !wrapped {
             // No wrapping patch keeps the joints: the patch goes inside the tile's own edges instead, chosen
             // again so that the tile's wrap joints hold with it too.
@@ -485,20 +474,8 @@ pub fn make_tile_set(
                 height: th,
                 ..target
             };
-            let cutting = Cutting {
-                wrap: false,
-                ..cutting
-            };
             (source, _, _) = choose_patch(&tile0, sample, inside, &taken, k, s, cutting);
-            patch = insert_patch(
-                &mut tile,
-                sample,
-                source,
-                inside,
-                s.belt,
-                &stitch_settings,
-                false,
-            );
+            patch = insert_patch(&mut tile, sample, source, inside, s.belt, &stitch_settings);
         }
         taken.push(source);
         let mut extra = Vec::new();
@@ -506,7 +483,6 @@ pub fn make_tile_set(
             let key = k + (e + 1) * 1000;
             let cutting = Cutting {
                 stitch: &stitch_settings,
-                wrap: false,
                 joints: None,
             };
             let (source, _, _) = choose_patch(&tile, sample, inner, &taken, key, s, cutting);
@@ -517,7 +493,6 @@ pub fn make_tile_set(
                 inner,
                 s.belt,
                 &stitch_settings,
-                false,
             ));
             taken.push(source);
         }
