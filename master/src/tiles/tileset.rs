@@ -225,9 +225,9 @@ fn by_score(a: &Scored, b: &Scored) -> std::cmp::Ordering {
         .then((a.1, a.2).cmp(&(b.1, b.2)))
 }
 
-/// How a tile's patch is cut: the stitch settings, and the [`wrap_ratio`]
-/// the tile may reach with it (the tile is the canvas's top-left `tile`
-/// pixels).
+/// How a tile's patch is cut: the stitch settings, and where joints are
+/// checked, the [`wrap_ratio`] the tile may reach and the tile's size (its
+/// pixels are the canvas's top-left `tw`×`th`).
 #[derive(Clone, Copy)]
 struct Cutting<'a> {
     stitch: &'a StitchSettings,
