@@ -127,13 +127,33 @@ pub fn insert_patch(
     settings: &StitchSettings,
 ) -> PatchReport {
     let (belts, cuts) = patch_cuts(tile, sample, source, target, belt, settings);
+    paste_patch(
+        tile,
+        sample,
+        (source, target),
+        (&belts, &cuts),
+        settings.rho,
+    );
+    report(source, target, &cuts)
+}
+
+/// Writes the patch `source` at `target` along cuts already found by
+/// [`patch_cuts`] (what [`insert_patch`] does after finding them), blending
+/// over `rho` pixels.
+pub(super) fn paste_patch(
+    tile: &mut ColorImage,
+    sample: &ColorImage,
+    (source, target): (Rect, Rect),
+    (belts, cuts): (&[Belt; 4], &[Cut]),
+    rho: f32,
+) {
     let r1 = patch_pixels(sample, source, target);
     let mut out = tile.clone();
     for y in target.y..target.y + target.height {
         for x in target.x..target.x + target.width {
             let mut inside = true;
             let mut weight: Option<(f32, [u8; 3])> = None;
-            for (b, cut) in belts.iter().zip(&cuts) {
+            for (b, cut) in belts.iter().zip(cuts) {
                 let Some((i, j)) = canonical(b, x, y) else {
                     continue;
                 };
@@ -141,7 +161,7 @@ pub fn insert_patch(
                     inside = false;
                     break;
                 }
-                let (alpha, (m, n)) = stitch::blend_weight(cut, settings.rho, i, j);
+                let (alpha, (m, n)) = stitch::blend_weight(cut, rho, i, j);
                 if weight.is_none_or(|(a, _)| alpha < a) {
                     let (px, py) = b.pixel(m, n);
                     weight = Some((alpha, tile.get(px, py)));
@@ -161,5 +181,4 @@ pub fn insert_patch(
         }
     }
     *tile = out;
-    report(source, target, &cuts)
 }

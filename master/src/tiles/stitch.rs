@@ -103,12 +103,11 @@ pub fn find_cut(
         None => path::optimal(m),
     };
     let path = if settings.pull > 0.0 && w > 1 {
-        let aim = w - 1;
         let biased: Vec<f32> = map
             .e
             .iter()
             .enumerate()
-            .map(|(k, &e)| e + settings.pull * aim.abs_diff(k % w) as f32)
+            .map(|(k, &e)| e + settings.pull * (w - 1 - k % w) as f32)
             .collect();
         search(&ErrorMap::new(w, h, biased))
     } else {

@@ -7,7 +7,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::patch::{insert_patch, patch_cuts, report, PatchReport};
+use super::patch::{insert_patch, paste_patch, patch_cuts, report, PatchReport};
 use super::stitch::StitchSettings;
 use super::template::{choose_template, choose_templates, make_template, Rect, TemplateChoice};
 use crate::imaging::ColorImage;
@@ -255,11 +255,12 @@ fn choose_patch(
         ChaCha8Rng::seed_from_u64(s.seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
     let score = |x: usize, y: usize| {
         let source = Rect { x, y, ..target };
-        let (_, cuts) = patch_cuts(tile, sample, source, target, s.belt, cutting.stitch);
+        let (belts, cuts) = patch_cuts(tile, sample, source, target, s.belt, cutting.stitch);
         let error = report(source, target, &cuts).mean_path_error;
         let shows = cutting.joints.is_some_and(|(bound, (tw, th))| {
             let mut t = tile.clone();
-            insert_patch(&mut t, sample, source, target, s.belt, cutting.stitch);
+            let cut = (&belts, &cuts[..]);
+            paste_patch(&mut t, sample, (source, target), cut, cutting.stitch.rho);
             wrap_ratio(&t.crop(0, 0, tw, th)) > bound
         });
         ((shows, error), x, y)
