@@ -33,12 +33,13 @@ pub const METHODS: [&str; 9] = [
 /// Methods run only when named: the block method's variants and Embark's
 /// `texture-synthesis` (the peer; `cargo install texture-synthesis-cli
 /// --locked`), for the block method's comparison.
-pub const EXTRA_METHODS: [&str; 6] = [
+pub const EXTRA_METHODS: [&str; 7] = [
     "block-scanline",
     "block-hard",
     "block-path",
     "block-repeat",
     "block-seam",
+    "block-cap",
     "embark",
 ];
 
@@ -53,8 +54,9 @@ pub struct QualityArgs {
     /// parallel-5, parallel-7, somol, omega, morph, solid; and, only when
     /// named, block-scanline, block-hard and block-path (the two stitches;
     /// `synth`'s default is path), block-repeat (repetition control at 25%),
-    /// block-seam (repetition control with the seam filter, 25%, N = 13)
-    /// and embark (Embark's texture-synthesis, the peer).
+    /// block-seam (repetition control with the seam filter, 25%, N = 13),
+    /// block-cap (the patch cap at 25% of the side, near-ties within 40%,
+    /// N = 13) and embark (Embark's texture-synthesis, the peer).
     #[arg(long, value_delimiter = ',', default_values_t = METHODS.map(String::from))]
     pub methods: Vec<String>,
     /// Skip samples whose larger side exceeds this (0 = none).
@@ -238,7 +240,7 @@ impl Job<'_> {
         let tile = (w.min(h) / 2) & !1;
         match method {
             "block" | "block-scanline" | "block-hard" | "block-path" | "block-repeat"
-            | "block-seam" => {
+            | "block-seam" | "block-cap" => {
                 let mut args = vec!["synth", &sample, "-o", &out, "--size", &size];
                 match method {
                     "block-scanline" => args.extend(["--method", "scanline"]),
@@ -246,6 +248,14 @@ impl Job<'_> {
                     "block-path" => args.extend(["--stitch", "path"]),
                     "block-repeat" => args.extend(["--repeat-percent", "25"]),
                     "block-seam" => args.extend(["--repeat-seam", "25", "--neighbourhood", "13"]),
+                    "block-cap" => args.extend([
+                        "--repeat-cap",
+                        "25",
+                        "--repeat-percent",
+                        "40",
+                        "--neighbourhood",
+                        "13",
+                    ]),
                     _ => {}
                 }
                 let (t, m) = self.texsyn(&args)?;

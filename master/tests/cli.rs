@@ -1374,6 +1374,20 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
             &["--no-repeat-control", "--repeat-seam", "15"],
             &["--no-repeat-control", "--repeat-seam"],
         ),
+        (&["--repeat-cap", "0"], &["--repeat-cap", "1..=100"]),
+        (&["--repeat-cap", "101"], &["--repeat-cap", "1..=100"]),
+        (
+            &["--repeat-cap", "20", "--repeat-seam", "15"],
+            &["--repeat-cap", "--repeat-seam", "give one"],
+        ),
+        (
+            &["--no-repeat-control", "--repeat-cap", "20"],
+            &["--no-repeat-control", "--repeat-cap"],
+        ),
+        (
+            &["--repeat-percent", "0", "--repeat-cap", "20"],
+            &["--repeat-cap", "slack"],
+        ),
     ] {
         let args = [
             &["synth", s(&sample), "-o", s(&out), "--size", "96x96"][..],
@@ -1401,4 +1415,16 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
         synth != run("synth", "seam", &["--repeat-seam", "15"]),
         "the seam filter changed nothing"
     );
+    // The patch cap is its own rule: not the use counts of the same slack.
+    let cap = run("synth", "cap", &["--repeat-cap", "20"]);
+    assert!(synth != cap, "the patch cap changed nothing");
+    assert!(
+        cap == run(
+            "synth",
+            "cap25",
+            &["--repeat-cap", "20", "--repeat-percent", "25"]
+        ),
+        "--repeat-cap starts from --repeat-percent 25"
+    );
+    assert!(cap != run("synth", "use25", &["--repeat-percent", "25"]));
 }

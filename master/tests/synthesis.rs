@@ -404,3 +404,67 @@ fn pruned_search_gives_the_same_synthesis_as_unpruned_exhaustive_search() {
         assert!(skipped > 0.1, "finest level pruned only {skipped}");
     }
 }
+
+/// Pixels of the output per copy offset (output position minus source).
+fn patch_sizes(out: &Output) -> std::collections::HashMap<[i64; 2], usize> {
+    let w = out.image.width;
+    let mut sizes = std::collections::HashMap::new();
+    for (i, &[sx, sy]) in out.copy_map.iter().enumerate() {
+        let offset = [
+            (i % w) as i64 - i64::from(sx),
+            (i / w) as i64 - i64::from(sy),
+        ];
+        *sizes.entry(offset).or_insert(0) += 1;
+    }
+    sizes
+}
+
+/// The patch cap (ARCHITECTURE §3.13) bounds how much of the output one copy
+/// offset covers, so the output repeats the sample less: on a sample at twice
+/// its side, the share of pixels in patches over twice the cap falls, and so
+/// does the verbatim repeat share; the output stays a consistent copy map and
+/// the same over thread counts.
+#[test]
+fn the_patch_cap_cuts_large_patches_and_repeats_less() {
+    use texsyn::block::RepeatControl;
+    use texsyn::compare::repeat_share;
+    let sample = texture("brick_color_96.png");
+    let mode = Mode::Synth {
+        width: 192,
+        height: 192,
+        method: SynthMethod::Grow,
+    };
+    let free = Config {
+        stitch: texsyn::Stitch::Path,
+        ..Config::default()
+    };
+    let capped = Config {
+        repeats: Some(RepeatControl {
+            percent: 25,
+            cap: Some(20),
+            ..RepeatControl::default()
+        }),
+        ..free.clone()
+    };
+    // The cap on the finest level: (20% of the 96-px side)² pixels.
+    let cap = 20 * 20;
+    let large = |out: &Output| {
+        let sizes = patch_sizes(out);
+        let n: usize = sizes.values().filter(|&&s| s > 2 * cap).sum();
+        n as f64 / out.copy_map.len() as f64
+    };
+    let a = run(&sample, &mode, &free, 2);
+    let b = run(&sample, &mode, &capped, 2);
+    let (la, lb) = (large(&a), large(&b));
+    let (ra, rb) = (repeat_share(&a.image), repeat_share(&b.image));
+    eprintln!("in patches over 2×cap: {la:.3} → {lb:.3}; repeat share {ra:.3} → {rb:.3}");
+    assert!(la > 0.3, "without the cap, large patches are common: {la}");
+    assert!(lb < la / 2.5, "the cap cuts large patches: {la} → {lb}");
+    assert!(rb < ra * 0.75, "the cap repeats less: {ra} → {rb}");
+    assert_copy_map_consistent(&b, &sample);
+    assert_eq!(
+        b.image,
+        run(&sample, &mode, &capped, 1).image,
+        "1 vs 2 threads"
+    );
+}

@@ -1177,4 +1177,14 @@ fn repetition_control_is_identical_over_threads_and_workers() {
     );
     let unfiltered = run("unfiltered", &["--repeat-percent", "150", "--threads", "2"]);
     assert!(seam_one != unfiltered, "the seam filter changed nothing");
+    // So does the patch cap: its offsets are counted on the master, in the
+    // batch's copy order.
+    let cap = ["--repeat-cap", "20"];
+    let cap_one = run("cap-one", &[&cap[..], &["--threads", "1"]].concat());
+    let cap_workers = run("cap-workers", &[&cap[..], &cluster[..]].concat());
+    assert!(
+        cap_one == cap_workers,
+        "the patch cap differs on 2 local workers"
+    );
+    assert!(cap_one != one, "the patch cap picks as the use counts do");
 }

@@ -12,7 +12,7 @@ use super::canvas::{set_pixel, Canvas};
 use super::neighbourhood::{candidates, query, Shape};
 use super::plan::LevelSample;
 use super::queue::BlockQueue;
-use super::repeats::{self, RepeatControl, Usage};
+use super::repeats::{self, Offsets, RepeatControl, Usage};
 use super::{Config, Progress, Stitch};
 use crate::search::SearchBackend;
 
@@ -127,14 +127,29 @@ pub(super) fn fill_level(
     let stitch = (ctx.cfg.stitch == Stitch::Path && !ctx.scanline)
         .then(|| (canvas.defined.clone(), stitch_band(b, n)))
         .filter(|(_, o)| *o > 0);
-    // Repetition control: what is known before the search counts as used.
-    let mut usage = ctx.cfg.repeats.map(|_| {
-        let mut u = Usage::new(ctx.sample.lum.width, ctx.sample.lum.height);
-        for (k, _) in canvas.defined.iter().enumerate().filter(|(_, d)| **d) {
-            let [x, y] = canvas.copy[k];
+    // Repetition control: what is known before the search counts as used
+    // (or, under the patch cap, as covered by its offset).
+    let (sw, sh) = (ctx.sample.lum.width, ctx.sample.lum.height);
+    let known: Vec<([usize; 2], [u32; 2])> = match ctx.cfg.repeats {
+        Some(_) => (0..canvas.defined.len())
+            .filter(|&k| canvas.defined[k])
+            .map(|k| ([k % canvas.width, k / canvas.width], canvas.copy[k]))
+            .collect(),
+        None => Vec::new(),
+    };
+    let mut usage = ctx.cfg.repeats.filter(|r| r.cap.is_none()).map(|_| {
+        let mut u = Usage::new(sw, sh);
+        for &(_, [x, y]) in &known {
             u.add(x as usize, y as usize);
         }
         u
+    });
+    let mut offsets = ctx.cfg.repeats.and_then(|r| r.cap).map(|percent| {
+        let mut o = Offsets::new(sw, sh, percent);
+        for &(at, from) in &known {
+            o.add(at, from, 1);
+        }
+        o
     });
     while !queue.is_empty() {
         let t = Instant::now();
@@ -199,34 +214,62 @@ pub(super) fn fill_level(
             // The seam filter's bands of the picked reference, kept for its
             // stitch (copying the block leaves the bands outside it as they are).
             let mut picked_bands = None;
-            let hit = match (&usage, &ctx.cfg.repeats) {
-                (Some(u), Some(r)) => {
+            let centre = {
+                let (x, y) = grid.centre(blk);
+                [x as usize, y as usize]
+            };
+            // Each near-tie's stitch bands and seam error (path stitching).
+            let seams = |hits: &[Hit]| {
+                stitch.as_ref().map(|(known, band)| {
+                    let sides: Vec<Option<Vec<Side>>> = hits
+                        .iter()
+                        .map(|h| {
+                            ctx.positions
+                                .get(h.index)
+                                .map(|p| bands(canvas, &grid, blk, p, ctx, known, *band))
+                        })
+                        .collect();
+                    let costs: Vec<f64> = sides
+                        .iter()
+                        .map(|s| s.as_deref().map_or(f64::INFINITY, seam_error))
+                        .collect();
+                    (sides, costs)
+                })
+            };
+            let hit = match (&usage, &offsets, &ctx.cfg.repeats) {
+                (_, Some(o), Some(_)) => {
+                    let at_cap = |h: &Hit| {
+                        ctx.positions
+                            .get(h.index)
+                            .is_none_or(|p| o.at_cap(centre, p))
+                    };
+                    let seams = seams(hits);
+                    let hit =
+                        repeats::pick_capped(hits, seams.as_ref().map(|(_, c)| &c[..]), at_cap);
+                    if let (Some(h), Some((mut sides, _))) = (hit, seams) {
+                        picked_bands = hits
+                            .iter()
+                            .position(|x| x.index == h.index)
+                            .and_then(|i| sides.swap_remove(i));
+                    }
+                    hit
+                }
+                (Some(u), _, Some(r)) => {
                     let block_use = |h: &Hit| {
                         ctx.positions
                             .get(h.index)
                             .map_or(u64::MAX, |p| u.block(p, b))
                     };
-                    match (r.seam, &stitch) {
-                        (Some(percent), Some((known, band))) => {
-                            let mut sides: Vec<Option<Vec<Side>>> = hits
-                                .iter()
-                                .map(|h| {
-                                    ctx.positions
-                                        .get(h.index)
-                                        .map(|p| bands(canvas, &grid, blk, p, ctx, known, *band))
-                                })
-                                .collect();
-                            let costs: Vec<f64> = sides
-                                .iter()
-                                .map(|s| s.as_deref().map_or(f64::INFINITY, seam_error))
-                                .collect();
+                    // The bands are only stitched in the head for the filter.
+                    match r.seam.and_then(|p| seams(hits).map(|s| (p, s))) {
+                        Some((percent, (mut sides, costs))) => {
                             let hit = repeats::pick_within_seam(hits, &costs, percent, block_use);
                             picked_bands = hit
                                 .and_then(|h| hits.iter().position(|x| x.index == h.index))
                                 .and_then(|i| sides.swap_remove(i));
                             hit
                         }
-                        _ => repeats::pick(hits, block_use),
+                        None => repeats::pick(hits, block_use),
                     }
                 }
                 _ => hits.first().copied(),
@@ -240,6 +283,9 @@ pub(super) fn fill_level(
                 )
             })?;
             copy_block(canvas, &grid, blk, pos, ctx, usage.as_mut());
+            if let Some(o) = offsets.as_mut() {
+                o.add(centre, pos, (b * b) as u64);
+            }
             if let Some((known, band)) = &stitch {
                 let sides = picked_bands
                     .unwrap_or_else(|| bands(canvas, &grid, blk, pos, ctx, known, *band));

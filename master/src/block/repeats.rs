@@ -9,6 +9,13 @@
 //! then the smaller index. Use counts start from the pixels known
 //! before the search (the placed sample counts as used once) and grow with
 //! every copy, in the batch's copy order, so the choice is deterministic.
+//!
+//! The patch cap is the other rule: it bounds how much of a level one copy
+//! offset (the displacement from sample to canvas) may cover, so that no
+//! coherent patch grows past a share of the sample's side. Verbatim repeats
+//! of the output are windows that two patches copied from the same sample
+//! region both hold whole, so smaller patches repeat less; the cut that ends
+//! a patch goes where the near-ties' stitched seams are least.
 
 use texsyn_engine::Hit;
 
@@ -25,6 +32,11 @@ pub struct RepeatControl {
     /// seam error is at most this percent above the exact best's are picked
     /// from.
     pub seam: Option<u32>,
+    /// Patch cap: one copy offset covers at most (this percent of the level
+    /// sample's shorter side)² pixels of a level; near-ties at the cap rank
+    /// after the others, and of those the least stitched seam (path
+    /// stitching) or else the nearest wins. Replaces the use counts.
+    pub cap: Option<u32>,
 }
 
 impl Default for RepeatControl {
@@ -34,6 +46,7 @@ impl Default for RepeatControl {
             slack: 0,
             percent: 10,
             seam: None,
+            cap: None,
         }
     }
 }
@@ -59,6 +72,15 @@ impl RepeatControl {
             self.seam.is_none_or(|s| s <= 1000),
             "--repeat-seam {} is too large; use 0..=1000",
             self.seam.unwrap_or(0)
+        );
+        anyhow::ensure!(
+            self.cap.is_none_or(|c| (1..=100).contains(&c)),
+            "--repeat-cap {} must be in 1..=100 (percent of the sample's shorter side)",
+            self.cap.unwrap_or(0)
+        );
+        anyhow::ensure!(
+            self.cap.is_none() || self.seam.is_none(),
+            "--repeat-cap and --repeat-seam are two ways to pick among the near-ties; give one"
         );
         anyhow::ensure!(
             self.slack > 0 || self.percent > 0,
@@ -112,6 +134,69 @@ impl Usage {
         }
         sum
     }
+}
+
+/// Pixels copied per copy offset on one level, for the patch cap.
+pub(super) struct Offsets {
+    covered: std::collections::HashMap<[i64; 2], u64>,
+    /// Pixels one offset may cover.
+    cap: u64,
+}
+
+impl Offsets {
+    /// The tracker of a level whose sample is `width` × `height`, with the
+    /// cap at `percent` of its shorter side (at least one pixel).
+    pub fn new(width: usize, height: usize, percent: u32) -> Self {
+        let side = (width.min(height) as u64 * u64::from(percent)).div_ceil(100);
+        Self {
+            covered: Default::default(),
+            cap: (side * side).max(1),
+        }
+    }
+
+    fn offset(canvas: [usize; 2], source: [u32; 2]) -> [i64; 2] {
+        [
+            canvas[0] as i64 - i64::from(source[0]),
+            canvas[1] as i64 - i64::from(source[1]),
+        ]
+    }
+
+    /// `pixels` more copied from `source` to `canvas` (any matching pair of
+    /// points: a block's centres, or one pixel).
+    pub fn add(&mut self, canvas: [usize; 2], source: [u32; 2], pixels: u64) {
+        *self
+            .covered
+            .entry(Self::offset(canvas, source))
+            .or_default() += pixels;
+    }
+
+    /// Whether copying `source` to `canvas` continues an offset at its cap.
+    pub fn at_cap(&self, canvas: [usize; 2], source: [u32; 2]) -> bool {
+        self.covered
+            .get(&Self::offset(canvas, source))
+            .is_some_and(|&c| c >= self.cap)
+    }
+}
+
+/// The patch cap's pick among the near-ties `hits` (sorted by distance, then
+/// index): those whose offset is under its cap first (`at_cap`), then the
+/// least seam error (`seams[i]` for `hits[i]`, when stitching by path), then
+/// the nearer, then the lower index.
+pub(super) fn pick_capped(
+    hits: &[Hit],
+    seams: Option<&[f64]>,
+    at_cap: impl Fn(&Hit) -> bool,
+) -> Option<Hit> {
+    let seam = |i: usize| seams.and_then(|s| s.get(i)).copied().unwrap_or(0.0);
+    hits.iter()
+        .enumerate()
+        .min_by(|&(i, a), &(j, b)| {
+            at_cap(a)
+                .cmp(&at_cap(b))
+                .then(seam(i).total_cmp(&seam(j)))
+                .then(a.key().cmp(&b.key()))
+        })
+        .map(|(_, h)| *h)
 }
 
 /// The pick among the near-ties `hits` (sorted by distance, then index): the
@@ -212,7 +297,64 @@ mod tests {
         assert_eq!(pick_within_seam(&[], &[], 10, used), None);
     }
 
+    #[test]
+    fn offsets_reach_their_cap_per_displacement() {
+        // 20% of the shorter side 48 is 9.6, rounded up: 10² = 100 pixels.
+        let mut o = Offsets::new(64, 48, 20);
+        assert_eq!(o.cap, 100);
+        o.add([30, 30], [10, 12], 75);
+        assert!(!o.at_cap([30, 30], [10, 12]));
+        // The same displacement elsewhere is the same patch's offset.
+        o.add([50, 41], [30, 23], 25);
+        assert!(o.at_cap([35, 35], [15, 17]));
+        assert!(!o.at_cap([35, 35], [15, 16]));
+        // A tiny sample still caps at one pixel.
+        assert_eq!(Offsets::new(3, 3, 1).cap, 1);
+    }
+
+    #[test]
+    fn the_capped_pick_passes_over_capped_near_ties_then_takes_the_least_seam() {
+        let hits = [hit(5, 100), hit(2, 110), hit(9, 130), hit(1, 140)];
+        let seams = [0.0, 12.0, 8.0, 30.0];
+        let capped = |h: &Hit| h.index == 5;
+        // 5 continues a capped patch; of the rest, 9 has the least seam.
+        assert_eq!(pick_capped(&hits, Some(&seams), capped), Some(hit(9, 130)));
+        // Without seams (hard stitching) the nearest uncapped.
+        assert_eq!(pick_capped(&hits, None, capped), Some(hit(2, 110)));
+        // Nothing capped: the least seam, the exact best's continuation.
+        assert_eq!(
+            pick_capped(&hits, Some(&seams), |_| false),
+            Some(hit(5, 100))
+        );
+        // All capped: as if none were.
+        assert_eq!(pick_capped(&hits, None, |_| true), Some(hit(5, 100)));
+        assert_eq!(pick_capped(&[], None, |_| false), None);
+    }
+
     proptest! {
+        /// The capped pick is under its cap whenever some near-tie is, and no
+        /// near-tie in the same class has a smaller (seam, distance, index).
+        #[test]
+        fn capped_pick_is_the_least_seam_of_the_uncapped(
+            mut d in prop::collection::vec(0u64..1000, 1..16),
+            seams in prop::collection::vec(0.0f64..500.0, 16),
+            capped in prop::collection::vec(any::<bool>(), 16),
+        ) {
+            d.sort_unstable();
+            let hits: Vec<Hit> = d.iter().enumerate().map(|(i, &d)| hit(i as u64, d)).collect();
+            let seams = &seams[..hits.len()];
+            let at_cap = |h: &Hit| capped[h.index as usize];
+            let p = pick_capped(&hits, Some(seams), at_cap).unwrap();
+            let i = p.index as usize;
+            if hits.iter().any(|h| !at_cap(h)) {
+                prop_assert!(!at_cap(&p));
+            }
+            for h in hits.iter().filter(|h| at_cap(h) == at_cap(&p)) {
+                let j = h.index as usize;
+                prop_assert!(seams[j] > seams[i] || (seams[j] == seams[i] && h.key() >= p.key()));
+            }
+        }
+
         /// The seam-filtered pick has a seam within the bound, and no hit
         /// within it is used less, or as little and nearer.
         #[test]

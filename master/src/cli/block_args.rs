@@ -81,6 +81,15 @@ pub struct Common {
     /// `--repeat-percent 150` unless given).
     #[arg(long, value_name = "PERCENT")]
     pub repeat_seam: Option<u32>,
+    /// Repetition control's patch cap: one copy offset (a coherent patch)
+    /// covers at most (this percent of the sample's shorter side)² pixels of
+    /// each level, so no patch grows large enough to be seen again elsewhere;
+    /// of the near-ties, those under their cap win, and of those the least
+    /// stitched seam (`--stitch path`) or else the nearest. Turns the control
+    /// on (with `--repeat-percent 25` unless given); e.g. 25 with
+    /// --neighbourhood 13.
+    #[arg(long, value_name = "PERCENT")]
+    pub repeat_cap: Option<u32>,
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
     /// textures whose structure and colour disagree. Runs on this machine.
     #[arg(long)]
@@ -273,6 +282,9 @@ pub fn config_with_stitch(c: &Common, stitch: block::Stitch) -> Result<Config> {
 /// The near-tie slack the seam filter starts from: wide, since the filter
 /// keeps only near-tie seams.
 const SEAM_PERCENT: u32 = 150;
+/// The near-tie slack the patch cap starts from: the ends of patches are cut
+/// among near-ties this close to the best match.
+const CAP_PERCENT: u32 = 25;
 
 /// The repetition control of `--repeat-slack`, `--repeat-percent`,
 /// `--repeat-candidates` and `--no-repeat-control` over the default.
@@ -283,11 +295,12 @@ fn repeats(
     let given = c.repeat_slack.is_some()
         || c.repeat_percent.is_some()
         || c.repeat_candidates.is_some()
-        || c.repeat_seam.is_some();
+        || c.repeat_seam.is_some()
+        || c.repeat_cap.is_some();
     if c.no_repeat_control {
         ensure!(
             !given,
-            "--no-repeat-control turns repetition control off; drop --repeat-slack, --repeat-percent, --repeat-candidates and --repeat-seam"
+            "--no-repeat-control turns repetition control off; drop --repeat-slack, --repeat-percent, --repeat-candidates, --repeat-seam and --repeat-cap"
         );
         return Ok(None);
     }
@@ -300,16 +313,19 @@ fn repeats(
         slack: c.repeat_slack.unwrap_or(base.slack),
         percent: c.repeat_percent.unwrap_or(if seam.is_some() {
             SEAM_PERCENT
+        } else if c.repeat_cap.is_some() {
+            CAP_PERCENT
         } else {
             base.percent
         }),
         candidates: c.repeat_candidates.unwrap_or(base.candidates),
         seam,
+        cap: c.repeat_cap,
     };
     if r.slack == 0 && r.percent == 0 {
         ensure!(
-            c.repeat_candidates.is_none() && c.repeat_seam.is_none(),
-            "--repeat-candidates and --repeat-seam need repetition control; drop them or give a slack above 0"
+            c.repeat_candidates.is_none() && c.repeat_seam.is_none() && c.repeat_cap.is_none(),
+            "--repeat-candidates, --repeat-seam and --repeat-cap need repetition control; drop them or give a slack above 0"
         );
         return Ok(None);
     }
