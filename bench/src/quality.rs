@@ -55,8 +55,8 @@ pub struct QualityArgs {
     /// named, block-scanline, block-hard and block-path (the two stitches;
     /// `synth`'s default is path), block-repeat (repetition control at 25%),
     /// block-seam (repetition control with the seam filter, 25%, N = 13),
-    /// block-cap (the patch cap at 25% of the side, near-ties within 40%,
-    /// N = 13) and embark (Embark's texture-synthesis, the peer).
+    /// block-cap (the patch cap at 25% of the side on the two finest levels,
+    /// near-ties within 60%, N = 13) and embark (Embark's texture-synthesis, the peer).
     #[arg(long, value_delimiter = ',', default_values_t = METHODS.map(String::from))]
     pub methods: Vec<String>,
     /// Skip samples whose larger side exceeds this (0 = none).
@@ -248,14 +248,7 @@ impl Job<'_> {
                     "block-path" => args.extend(["--stitch", "path"]),
                     "block-repeat" => args.extend(["--repeat-percent", "25"]),
                     "block-seam" => args.extend(["--repeat-seam", "25", "--neighbourhood", "13"]),
-                    "block-cap" => args.extend([
-                        "--repeat-cap",
-                        "25",
-                        "--repeat-percent",
-                        "40",
-                        "--neighbourhood",
-                        "13",
-                    ]),
+                    "block-cap" => args.extend(["--repeat-cap", "25", "--neighbourhood", "13"]),
                     _ => {}
                 }
                 let (t, m) = self.texsyn(&args)?;

@@ -1421,10 +1421,10 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
     assert!(
         cap == run(
             "synth",
-            "cap25",
-            &["--repeat-cap", "20", "--repeat-percent", "25"]
+            "cap60",
+            &["--repeat-cap", "20", "--repeat-percent", "60"]
         ),
-        "--repeat-cap starts from --repeat-percent 25"
+        "--repeat-cap starts from --repeat-percent 60"
     );
-    assert!(cap != run("synth", "use25", &["--repeat-percent", "25"]));
+    assert!(cap != run("synth", "use60", &["--repeat-percent", "60"]));
 }

@@ -423,7 +423,7 @@ fn patch_sizes(out: &Output) -> std::collections::HashMap<[i64; 2], usize> {
 /// offset covers, so the output repeats the sample less: on a sample at twice
 /// its side, the share of pixels in patches over twice the cap falls, and so
 /// does the verbatim repeat share; the output stays a consistent copy map and
-/// the same over thread counts.
+/// the same over thread counts, and only the two finest levels change.
 #[test]
 fn the_patch_cap_cuts_large_patches_and_repeats_less() {
     use texsyn::block::RepeatControl;
@@ -440,7 +440,7 @@ fn the_patch_cap_cuts_large_patches_and_repeats_less() {
     };
     let capped = Config {
         repeats: Some(RepeatControl {
-            percent: 25,
+            percent: 60,
             cap: Some(20),
             ..RepeatControl::default()
         }),
@@ -467,4 +467,13 @@ fn the_patch_cap_cuts_large_patches_and_repeats_less() {
         run(&sample, &mode, &capped, 1).image,
         "1 vs 2 threads"
     );
+    // The coarse levels, which lay out the structure, are the exact search's.
+    assert!(a.levels.len() > 2, "{} levels", a.levels.len());
+    for l in 2..a.levels.len() {
+        assert!(
+            a.levels[l] == b.levels[l],
+            "level {l} changed under the cap"
+        );
+    }
+    assert!(a.levels[1] != b.levels[1], "level 1 is capped");
 }

@@ -130,21 +130,27 @@ pub(super) fn fill_level(
     // Repetition control: what is known before the search counts as used
     // (or, under the patch cap, as covered by its offset).
     let (sw, sh) = (ctx.sample.lum.width, ctx.sample.lum.height);
-    let known: Vec<([usize; 2], [u32; 2])> = match ctx.cfg.repeats {
+    // The patch cap leaves the coarse levels, which lay out the structure,
+    // to the exact best match.
+    let control = ctx
+        .cfg
+        .repeats
+        .filter(|r| r.cap.is_none() || ctx.level < repeats::CAP_LEVELS);
+    let known: Vec<([usize; 2], [u32; 2])> = match control {
         Some(_) => (0..canvas.defined.len())
             .filter(|&k| canvas.defined[k])
             .map(|k| ([k % canvas.width, k / canvas.width], canvas.copy[k]))
             .collect(),
         None => Vec::new(),
     };
-    let mut usage = ctx.cfg.repeats.filter(|r| r.cap.is_none()).map(|_| {
+    let mut usage = control.filter(|r| r.cap.is_none()).map(|_| {
         let mut u = Usage::new(sw, sh);
         for &(_, [x, y]) in &known {
             u.add(x as usize, y as usize);
         }
         u
     });
-    let mut offsets = ctx.cfg.repeats.and_then(|r| r.cap).map(|percent| {
+    let mut offsets = control.and_then(|r| r.cap).map(|percent| {
         let mut o = Offsets::new(sw, sh, percent);
         for &(at, from) in &known {
             o.add(at, from, 1);
@@ -187,7 +193,7 @@ pub(super) fn fill_level(
         let chosen = &batcher.chosen;
         stats.query_seconds += t.elapsed().as_secs_f64();
         let (t, busy) = (Instant::now(), texsyn_engine::busy_nanos());
-        let lists = match &ctx.cfg.repeats {
+        let lists = match &control {
             Some(r) => {
                 let slack: Vec<Slack> =
                     (0..batch.len()).map(|q| slack(ctx, r, &batch, q)).collect();
@@ -236,7 +242,7 @@ pub(super) fn fill_level(
                     (sides, costs)
                 })
             };
-            let hit = match (&usage, &offsets, &ctx.cfg.repeats) {
+            let hit = match (&usage, &offsets, &control) {
                 (_, Some(o), Some(_)) => {
                     let at_cap = |h: &Hit| {
                         ctx.positions

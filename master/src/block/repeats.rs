@@ -35,7 +35,8 @@ pub struct RepeatControl {
     /// Patch cap: one copy offset covers at most (this percent of the level
     /// sample's shorter side)² pixels of a level; near-ties at the cap rank
     /// after the others, and of those the least stitched seam (path
-    /// stitching) or else the nearest wins. Replaces the use counts.
+    /// stitching) or else the nearest wins. Replaces the use counts; applies
+    /// on the [`CAP_LEVELS`] finest levels.
     pub cap: Option<u32>,
 }
 
@@ -135,6 +136,14 @@ impl Usage {
         sum
     }
 }
+
+/// Levels, finest first, on which the patch cap cuts patches. Coarser levels
+/// take the exact best match: their patches lay out the structure (stones,
+/// bricks), and cutting them there merged and broke it; on the two finest
+/// levels a cut changes the detail inside an unchanged layout. Against the
+/// peer on 22 samples, capping every level gave fidelity and repeat both
+/// better on 10, capping the two finest on 13.
+pub(super) const CAP_LEVELS: usize = 2;
 
 /// Pixels copied per copy offset on one level, for the patch cap.
 pub(super) struct Offsets {

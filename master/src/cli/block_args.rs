@@ -85,9 +85,9 @@ pub struct Common {
     /// covers at most (this percent of the sample's shorter side)² pixels of
     /// each level, so no patch grows large enough to be seen again elsewhere;
     /// of the near-ties, those under their cap win, and of those the least
-    /// stitched seam (`--stitch path`) or else the nearest. Turns the control
-    /// on (with `--repeat-percent 25` unless given); e.g. 25 with
-    /// --neighbourhood 13.
+    /// stitched seam (`--stitch path`) or else the nearest. On the two finest
+    /// levels; coarser ones keep the exact best. Turns the control on (with
+    /// `--repeat-percent 60` unless given); e.g. 25 with --neighbourhood 13.
     #[arg(long, value_name = "PERCENT")]
     pub repeat_cap: Option<u32>,
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
@@ -284,7 +284,7 @@ pub fn config_with_stitch(c: &Common, stitch: block::Stitch) -> Result<Config> {
 const SEAM_PERCENT: u32 = 150;
 /// The near-tie slack the patch cap starts from: the ends of patches are cut
 /// among near-ties this close to the best match.
-const CAP_PERCENT: u32 = 25;
+const CAP_PERCENT: u32 = 60;
 
 /// The repetition control of `--repeat-slack`, `--repeat-percent`,
 /// `--repeat-candidates` and `--no-repeat-control` over the default.
