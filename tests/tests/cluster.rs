@@ -1166,25 +1166,23 @@ fn repetition_control_is_identical_over_threads_and_workers() {
     );
     let plain = run("plain", &["--threads", "2"]);
     assert!(one != plain, "repetition control changed nothing");
+    // The output of `flags` on 1 thread, checked equal on 2 local workers.
+    let same_on_workers = |name: &str, flags: &[&str]| {
+        let on_one = run(
+            &format!("{name}-one"),
+            &[flags, &["--threads", "1"]].concat(),
+        );
+        let on_workers = run(&format!("{name}-workers"), &[flags, &cluster[..]].concat());
+        assert!(on_one == on_workers, "{name} differs on 2 local workers");
+        on_one
+    };
     // The seam filter runs on the master too: the same bytes on 1 thread and
     // on 2 workers, and a different pick from the same slack without it.
-    let seam = ["--repeat-seam", "15"];
-    let seam_one = run("seam-one", &[&seam[..], &["--threads", "1"]].concat());
-    let seam_workers = run("seam-workers", &[&seam[..], &cluster[..]].concat());
-    assert!(
-        seam_one == seam_workers,
-        "the seam filter differs on 2 local workers"
-    );
+    let seam_one = same_on_workers("seam", &["--repeat-seam", "15"]);
     let unfiltered = run("unfiltered", &["--repeat-percent", "150", "--threads", "2"]);
     assert!(seam_one != unfiltered, "the seam filter changed nothing");
     // So does the patch cap: its offsets are counted on the master, in the
     // batch's copy order.
-    let cap = ["--repeat-cap", "20"];
-    let cap_one = run("cap-one", &[&cap[..], &["--threads", "1"]].concat());
-    let cap_workers = run("cap-workers", &[&cap[..], &cluster[..]].concat());
-    assert!(
-        cap_one == cap_workers,
-        "the patch cap differs on 2 local workers"
-    );
+    let cap_one = same_on_workers("cap", &["--repeat-cap", "20"]);
     assert!(cap_one != one, "the patch cap picks as the use counts do");
 }

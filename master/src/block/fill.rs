@@ -252,12 +252,7 @@ pub(super) fn fill_level(
                     let seams = seams(hits);
                     let hit =
                         repeats::pick_capped(hits, seams.as_ref().map(|(_, c)| &c[..]), at_cap);
-                    if let (Some(h), Some((mut sides, _))) = (hit, seams) {
-                        picked_bands = hits
-                            .iter()
-                            .position(|x| x.index == h.index)
-                            .and_then(|i| sides.swap_remove(i));
-                    }
+                    picked_bands = seams.and_then(|(sides, _)| bands_of(hits, hit, sides));
                     hit
                 }
                 (Some(u), _, Some(r)) => {
@@ -268,11 +263,9 @@ pub(super) fn fill_level(
                     };
                     // The bands are only stitched in the head for the filter.
                     match r.seam.and_then(|p| seams(hits).map(|s| (p, s))) {
-                        Some((percent, (mut sides, costs))) => {
+                        Some((percent, (sides, costs))) => {
                             let hit = repeats::pick_within_seam(hits, &costs, percent, block_use);
-                            picked_bands = hit
-                                .and_then(|h| hits.iter().position(|x| x.index == h.index))
-                                .and_then(|i| sides.swap_remove(i));
+                            picked_bands = bands_of(hits, hit, sides);
                             hit
                         }
                         None => repeats::pick(hits, block_use),
@@ -389,6 +382,18 @@ impl Batcher {
 
 /// Copies the reference block centred at `pos` into block `blk`: only its
 /// undefined pixels, or all of them in scan-line synthesis.
+/// The stitch bands of the picked `hit`, of those computed for the near-ties
+/// `hits` (kept for its stitch).
+fn bands_of(
+    hits: &[Hit],
+    hit: Option<Hit>,
+    mut sides: Vec<Option<Vec<Side>>>,
+) -> Option<Vec<Side>> {
+    let h = hit?;
+    let i = hits.iter().position(|x| x.index == h.index)?;
+    sides.swap_remove(i)
+}
+
 fn copy_block(
     canvas: &mut Canvas,
     grid: &Grid,
