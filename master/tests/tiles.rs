@@ -191,6 +191,7 @@ fn settings(tiles: usize) -> TileSetSettings {
         belt: 10,
         margin: 2,
         pull: 0.0,
+        template_share: 1.0,
         template_candidates: 1,
         candidates: 24,
         refine: 4,
@@ -874,6 +875,7 @@ fn somol_set(sample: &ColorImage, side: usize, paper: bool) -> tiles::TileSet {
         s.belt = s.overlap;
         s.margin = 2;
         s.pull = 0.0;
+        s.template_share = 1.0;
         s.template_candidates = 1;
     }
     tiles::make_tile_set(sample, None, &s, &Silent).unwrap()
@@ -916,8 +918,8 @@ fn derived_tiles_share_little_more_than_the_template_s_ring_and_the_paper_s_band
         assert!((0..h).all(|y| t.get(0, y) == t0.get(0, y)));
     }
     assert!(
-        set.derived.iter().any(|d| d.wrapped),
-        "no patch reached over the right and bottom edges"
+        set.derived.iter().any(|d| d.wrap != tiles::Wrap::Inside),
+        "no patch reached over the right or bottom edge"
     );
     let (ok, worst) = wraps_within_bound(&set.tiles);
     assert!(ok, "a tile's wrap joints step {worst} × its interior");
@@ -971,6 +973,95 @@ fn wraps_within_bound(set: &[ColorImage]) -> (bool, f64) {
         .map(tiles::tileset::wrap_ratio)
         .fold(0.0, f64::max);
     (worst <= bound, worst)
+}
+
+#[test]
+fn a_patch_that_cannot_wrap_both_edges_wraps_one_and_keeps_the_other_edge_the_template_s() {
+    // The 64² brick: no patch keeps the joints wrapping both edges, so each
+    // tile wraps one edge (or none); the edge it does not wrap stays the
+    // template's, pixel for pixel, and every tile's joints hold.
+    let sample = texture("brick_gray_64.png");
+    let set = somol_set(&sample, 32, false);
+    let t0 = &set.tiles[0];
+    let (w, h) = (t0.width, t0.height);
+    let kinds: Vec<tiles::Wrap> = set.derived.iter().map(|d| d.wrap).collect();
+    assert!(
+        kinds
+            .iter()
+            .any(|k| matches!(k, tiles::Wrap::Right | tiles::Wrap::Bottom)),
+        "no tile wraps one edge: {kinds:?}"
+    );
+    let last_col = |t: &ColorImage| (0..h).all(|y| t.get(w - 1, y) == t0.get(w - 1, y));
+    let last_row = |t: &ColorImage| (0..w).all(|x| t.get(x, h - 1) == t0.get(x, h - 1));
+    for (t, k) in set.tiles[1..].iter().zip(&kinds) {
+        match k {
+            tiles::Wrap::Right => {
+                assert!(last_row(t), "a right-wrapping tile changed its bottom row")
+            }
+            tiles::Wrap::Bottom => assert!(
+                last_col(t),
+                "a bottom-wrapping tile changed its right column"
+            ),
+            tiles::Wrap::Inside => assert!(last_col(t) && last_row(t)),
+            tiles::Wrap::Both => {}
+        }
+    }
+    let (ok, worst) = wraps_within_bound(&set.tiles);
+    assert!(ok, "a tile's wrap joints step {worst} × its interior");
+}
+
+#[test]
+fn the_pull_ladder_keeps_the_mean_template_share_in_budget_and_no_budget_fails() {
+    // Small tiles, where the template's first column and row alone are 6%
+    // of a tile: the weakest pull leaves more of the template than the
+    // budget, so tiles climb the ladder; without a budget none does and the
+    // set shares more.
+    let sample = texture("brick_color_96.png");
+    let mut s = tiles::SomolConfig {
+        tile_size: Some(40),
+        ..Default::default()
+    }
+    .settings(&sample, None)
+    .unwrap();
+    let budget = s.template_share;
+    let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
+    let t0 = &set.tiles[0];
+    let shares: Vec<f64> = set.tiles[1..]
+        .iter()
+        .map(|t| tiles::tileset::template_share(t, t0))
+        .collect();
+    for (d, &share) in set.derived.iter().zip(&shares) {
+        assert!(
+            (d.template_share - share).abs() < 1e-12,
+            "reported {} against {share}",
+            d.template_share
+        );
+        assert!(d.pull >= s.pull);
+    }
+    let mean = shares.iter().sum::<f64>() / shares.len() as f64;
+    assert!(
+        mean <= budget,
+        "mean template share {mean} over the budget {budget}"
+    );
+    assert!(
+        set.derived.iter().any(|d| d.pull > s.pull),
+        "no tile needed a stronger pull"
+    );
+    let (ok_now, o) = overlap_within_bound(&set.tiles);
+    assert!(ok_now, "tile_overlap {o}");
+    // The planted defect: no budget, the least pull everywhere.
+    s.template_share = 1.0;
+    let loose = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
+    assert!(loose.derived.iter().all(|d| d.pull == s.pull));
+    let loose_mean = loose.tiles[1..]
+        .iter()
+        .map(|t| tiles::tileset::template_share(t, &loose.tiles[0]))
+        .sum::<f64>()
+        / shares.len() as f64;
+    assert!(
+        loose_mean > budget,
+        "without a budget the mean share is {loose_mean}"
+    );
 }
 
 #[test]

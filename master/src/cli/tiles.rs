@@ -58,14 +58,22 @@ pub struct MakeArgs {
     /// in the paper).
     #[arg(long)]
     pub overlap: Option<usize>,
-    /// Belt of the patch stitches (default: a twenty-fourth of the tile, at
-    /// least 3; the paper's is the overlap).
+    /// Belt of the patch stitches (default: a tenth of the tile, at least 3,
+    /// the paper's w_P = w_T).
     #[arg(long)]
     pub belt: Option<usize>,
-    /// Pull of the patch paths towards the tile's edge, in RGB distance per
-    /// pixel of the belt (0: the paper's search).
+    /// Least pull of the patch paths towards the tile's edge, in RGB
+    /// distance per pixel of the belt (0: the paper's search). Each tile
+    /// doubles it while the tiles' mean template share is over
+    /// --template-share.
     #[arg(long, default_value_t = SomolConfig::default().pull)]
     pub pull: f32,
+    /// Mean share of the derived tiles, the first column and row every tile
+    /// keeps included, that may stay the template's (1: no limit, the least
+    /// pull everywhere). Tiles that share less look less alike; a lower
+    /// budget pulls the stitch paths straighter.
+    #[arg(long, default_value_t = SomolConfig::default().template_share)]
+    pub template_share: f64,
     /// Template placements stitched and compared, at the overlap and twice it
     /// (1: the paper's single best by border error).
     #[arg(long, default_value_t = SomolConfig::default().template_candidates)]
@@ -133,6 +141,7 @@ impl TryFrom<&MakeArgs> for MakeConfig {
             overlap: a.overlap,
             belt: a.belt,
             pull: a.pull,
+            template_share: a.template_share,
             template_candidates: a.template_candidates,
             candidates: a.candidates,
             path: a.path,

@@ -31,17 +31,22 @@ pub const OVERLAP: RangeInclusive<usize> = 1..=1 << 14;
 pub const TEMPLATES: RangeInclusive<usize> = 1..=64;
 /// Largest pull of the patch paths, per pixel of the belt.
 pub const PULL_MAX: f32 = 1000.0;
-/// Pull of the patch paths towards the tile's edge by default.
-pub const DEFAULT_PULL: f32 = 16.0;
+/// Least pull of the patch paths towards the tile's edge by default (each
+/// tile doubles it while the tiles' mean template share is over budget).
+pub const DEFAULT_PULL: f32 = 4.0;
+/// Mean share of the derived tiles (their first column and row included)
+/// that may stay the template's by default.
+pub const DEFAULT_TEMPLATE_SHARE: f64 = 0.09;
 /// Border strip of every derived tile that stays the template's: one pixel,
 /// so both sides of every joint are the template's own continuation.
 pub const MARGIN: usize = 0;
 
-/// The patch belt of a `size`-pixel tile by default: a twenty-fourth of the
-/// tile, at least 3 pixels. Narrower than the paper's `w_P = w_T` (a tenth),
-/// so the template's band is thin; the path still has room to bend.
+/// The patch belt of a `size`-pixel tile by default: the paper's
+/// `w_P = w_T`, a tenth of the tile, at least 3 pixels. Wide enough for a
+/// path to pass round the texture's objects; the template share budget,
+/// not the belt, keeps the template's band thin.
 pub fn default_belt(size: usize) -> usize {
-    (size / 24).max(3)
+    (size / 10).max(3)
 }
 
 /// Tile side.
@@ -70,9 +75,14 @@ pub struct SomolConfig {
     pub overlap: Option<usize>,
     /// Patch belt `w_P`; default [`default_belt`] (the paper's is `w_T`).
     pub belt: Option<usize>,
-    /// Pull of the patch paths towards the tile's edge (0 = the paper's
-    /// search).
+    /// Least pull of the patch paths towards the tile's edge (0 = the
+    /// paper's search); each tile doubles it until the derived tiles' mean
+    /// template share is within `template_share`.
     pub pull: f32,
+    /// Mean share of the derived tiles, their first column and row
+    /// included, that may stay the template's (1 = no limit: the least pull
+    /// everywhere).
+    pub template_share: f64,
     /// Template placements stitched and compared (1 = the paper's single
     /// best by border error).
     pub template_candidates: usize,
@@ -89,6 +99,7 @@ impl Default for SomolConfig {
             overlap: None,
             belt: None,
             pull: DEFAULT_PULL,
+            template_share: DEFAULT_TEMPLATE_SHARE,
             template_candidates: 3,
             candidates: 48,
             path: PathSearch::Oscillating,
@@ -117,6 +128,11 @@ impl SomolConfig {
             self.pull.is_finite() && (0.0..=PULL_MAX).contains(&self.pull),
             "--pull {} is out of range: give 0..={PULL_MAX}",
             self.pull
+        );
+        ensure!(
+            (0.0..=1.0).contains(&self.template_share),
+            "--template-share {} is out of range: give 0..=1",
+            self.template_share
         );
         if let Some(t) = self.tile_size {
             check_range("--tile-size", t, &TILE_SIZE)?;
@@ -164,6 +180,7 @@ impl SomolConfig {
             belt,
             margin: MARGIN,
             pull: self.pull,
+            template_share: self.template_share,
             template_candidates: self.template_candidates,
             candidates: self.candidates,
             refine: 4,

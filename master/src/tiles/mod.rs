@@ -29,4 +29,4 @@ pub use grid::{assemble, check_grid, check_index, layout, random_index, read_ind
 pub use make::{make_omega, make_somol, omega_evaluator, Made};
 pub use patch::{insert_patch, PatchReport};
 pub use template::{choose_template, make_template, Rect, TemplateChoice};
-pub use tileset::{make_tile_set, DerivedTile, PathSearch, TileSet, TileSetSettings};
+pub use tileset::{make_tile_set, DerivedTile, PathSearch, TileSet, TileSetSettings, Wrap};

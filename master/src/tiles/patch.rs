@@ -12,7 +12,7 @@ use crate::imaging::ColorImage;
 pub struct PatchReport {
     /// The patch's rectangle in the sample.
     pub source: Rect,
-    /// Its rectangle in the tile; a patch that wraps (`DerivedTile::wrapped`)
+    /// Its rectangle in the tile; a patch that wraps (`DerivedTile::wrap`)
     /// is one pixel wider and taller than the tile, reaching into the next
     /// tile's first column and row.
     pub target: Rect,

@@ -7,6 +7,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::config::PULL_MAX;
 use super::patch::{insert_patch, paste_patch, patch_cuts, report, PatchReport};
 use super::stitch::StitchSettings;
 use super::template::{choose_template, choose_templates, make_template, Rect, TemplateChoice};
@@ -28,10 +29,16 @@ pub struct TileSetSettings {
     /// Border strip of every tile that patches never touch (0: only the
     /// first column and row, see [`make_tile_set`]).
     pub margin: usize,
-    /// Pull of the patch paths towards the tile's edge, per pixel of the
-    /// belt ([`StitchSettings::pull`]; 0 = the paper's search).
+    /// Least pull of the patch paths towards the tile's edge, per pixel of
+    /// the belt ([`StitchSettings::pull`]; 0 = the paper's search).
     #[serde(default)]
     pub pull: f32,
+    /// Mean share of the derived tiles (their first column and row
+    /// included) that may stay the template's: each tile's pull is doubled
+    /// (up to [`PULL_MAX`]) while the mean so far is over it
+    /// ([`template_share`]; 1 = no limit).
+    #[serde(default = "no_limit")]
+    pub template_share: f64,
     /// Template placements whose stitches are made and compared
     /// ([`choose_template`]'s best few by border error; 1 = the paper's).
     #[serde(default = "one")]
@@ -62,6 +69,30 @@ fn one() -> usize {
     1
 }
 
+fn no_limit() -> f64 {
+    1.0
+}
+
+/// The pulls a tile's patch paths try, weakest first: `least`, then twice
+/// it up to [`PULL_MAX`] (from 1 when `least` is 0).
+fn pull_ladder(least: f32) -> impl Iterator<Item = f32> {
+    std::iter::successors(Some(least), |&p| {
+        let next = if p > 0.0 { 2.0 * p } else { 1.0 };
+        (p < PULL_MAX).then_some(next.min(PULL_MAX))
+    })
+}
+
+/// The share of `tile`'s pixels equal to the `template`'s at the same
+/// place, its first column and row (which every tile keeps) included.
+pub fn template_share(tile: &ColorImage, template: &ColorImage) -> f64 {
+    let (w, h) = (tile.width, tile.height);
+    let kept = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .filter(|&(x, y)| tile.get(x, y) == template.get(x, y))
+        .count();
+    kept as f64 / (w * h).max(1) as f64
+}
+
 impl PathSearch {
     fn stitch_settings(self, pull: f32) -> StitchSettings {
         StitchSettings {
@@ -79,10 +110,16 @@ impl PathSearch {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct DerivedTile {
     pub patch: PatchReport,
-    /// Whether the patch reaches over the right and bottom edges into the
-    /// next tile's first column and row ([`make_tile_set`]).
+    /// Which of the tile's edges the patch reaches over, into the next
+    /// tile's first column or row ([`make_tile_set`]).
     #[serde(default)]
-    pub wrapped: bool,
+    pub wrap: Wrap,
+    /// The pull its paths took ([`pull_ladder`]) and the share of it that
+    /// stayed the template's ([`template_share`]).
+    #[serde(default)]
+    pub pull: f32,
+    #[serde(default)]
+    pub template_share: f64,
     /// The extra patches inside the main one (large tiles).
     #[serde(default)]
     pub extra: Vec<PatchReport>,
@@ -90,6 +127,47 @@ pub struct DerivedTile {
     /// random choice would have given, on average).
     pub random_mean_path_error: f64,
     pub seconds: f64,
+}
+
+/// The edges a derived tile's patch reaches over: the right one (into the
+/// next tile's first column), the bottom one (its first row), both, or
+/// neither (the patch lies inside the tile's own edges).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Wrap {
+    Both,
+    Right,
+    Bottom,
+    #[default]
+    Inside,
+}
+
+impl Wrap {
+    /// The patch rectangle of a `tw`×`th` tile that wraps so, given the one
+    /// that wraps both edges (one pixel wider and taller than the tile).
+    fn target(self, both: Rect, tw: usize, th: usize) -> Rect {
+        match self {
+            Self::Both => both,
+            Self::Right => Rect { height: th, ..both },
+            Self::Bottom => Rect { width: tw, ..both },
+            Self::Inside => Rect {
+                width: tw,
+                height: th,
+                ..both
+            },
+        }
+    }
+}
+
+/// One rung of a tile's pull ladder: where its patch wraps, the choice, the
+/// tile (on the canvas) with the patch in, the pull and the template share.
+struct Rung {
+    kind: Wrap,
+    chosen: Chosen,
+    tile: ColorImage,
+    patch: PatchReport,
+    pull: f32,
+    share: f64,
 }
 
 /// A tile set: the template and the tiles derived from it.
@@ -250,7 +328,7 @@ fn choose_patch(
     k: usize,
     s: &TileSetSettings,
     cutting: Cutting,
-) -> (Rect, bool, f64) {
+) -> Chosen {
     let mut rng =
         ChaCha8Rng::seed_from_u64(s.seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
     let score = |x: usize, y: usize| {
@@ -313,15 +391,26 @@ fn choose_patch(
         .chain(rayon::iter::once(pick))
         .min_by(by_score)
         .unwrap_or(pick);
-    (
-        Rect {
+    Chosen {
+        source: Rect {
             x: best.1,
             y: best.2,
             ..target
         },
-        !best.0 .0,
+        holds: !best.0 .0,
+        error: best.0 .1,
         random_mean,
-    )
+    }
+}
+
+/// A tile's chosen patch: its source rectangle, whether the tile's wrap
+/// joints hold with it, its mean path error and the random candidates'.
+#[derive(Clone, Copy)]
+struct Chosen {
+    source: Rect,
+    holds: bool,
+    error: f64,
+    random_mean: f64,
 }
 
 /// The rectangles of the extra patches of a `tw`×`th` tile: none below
@@ -398,12 +487,16 @@ pub const EXTRA_FROM: usize = 128;
 /// `±refine` neighbourhood, as the paper does. With no `margin`, the patch
 /// covers the template continued by its first column and row
 /// ([`wrap_extended`]): every tile keeps only that column and row, which
-/// its right and bottom neighbours see, and its paths are pulled towards
-/// the edge, so the tile's own content covers most of it (§4: "the patching
-/// process must affect most of the tile image surface"). A tile whose wrap
-/// joints ([`wrap_ratio`]) step more than the template's, or its interior's
-/// median, takes the patch inside its own edges instead. Large tiles then
-/// take half-size patches from yet other places inside ([`extra_targets`]).
+/// its right and bottom neighbours see. A tile whose wrap joints
+/// ([`wrap_ratio`]) step more than the template's, or its interior's
+/// median, wraps one edge only ([`Wrap`]), or else takes the patch inside
+/// its own edges. The paths are pulled towards the edge by the weakest pull
+/// of [`pull_ladder`] that keeps the tiles' mean [`template_share`] within
+/// budget, so the tile's own content covers most of it (§4: "the patching
+/// process must affect most of the tile image surface") while the paths
+/// still bend round the texture's objects where the budget leaves room.
+/// Large tiles then take half-size patches from yet other places inside
+/// ([`extra_targets`]).
 pub fn make_tile_set(
     sample: &ColorImage,
     template: Option<&ColorImage>,
@@ -455,29 +548,82 @@ pub fn make_tile_set(
     };
     let mut tiles = vec![tile0.clone()];
     let mut derived = Vec::new();
+    let mut spent = 0.0;
     for k in 1..s.tiles {
         let t = std::time::Instant::now();
-        let cutting = Cutting {
-            stitch: &stitch_settings,
-            joints: Some((joint_bound, (tw, th))),
-        };
-        let (mut source, holds, random_mean) =
-            choose_patch(&canvas, sample, target, &taken, k, s, cutting);
-        let wrapped = wrap && holds;
-        let mut tile = canvas.clone();
-        let mut patch = insert_patch(&mut tile, sample, source, target, s.belt, &stitch_settings);
-        if wrap && !wrapped {
-            // No wrapping patch keeps the joints: the patch goes inside the tile's own edges instead, chosen
-            // again so that the tile's wrap joints hold with it too.
-            tile = tile0.clone();
-            let inside = Rect {
-                width: tw,
-                height: th,
-                ..target
+        // One rung of the pull ladder: the patch chosen and inserted with
+        // its paths pulled so. It wraps both edges where its joints hold;
+        // else the one edge whose joints hold with the lesser path error;
+        // else it lies inside the tile's own edges. With a margin it lies
+        // inside that.
+        let rung = |pull: f32| {
+            let settings = s.path.stitch_settings(pull);
+            let cutting = Cutting {
+                stitch: &settings,
+                joints: Some((joint_bound, (tw, th))),
             };
-            (source, _, _) = choose_patch(&tile0, sample, inside, &taken, k, s, cutting);
-            patch = insert_patch(&mut tile, sample, source, inside, s.belt, &stitch_settings);
+            let choose = |kind: Wrap| {
+                let at = if wrap {
+                    kind.target(target, tw, th)
+                } else {
+                    target
+                };
+                let chosen = choose_patch(&canvas, sample, at, &taken, k, s, cutting);
+                (kind, at, chosen)
+            };
+            let (kind, at, chosen) = if !wrap {
+                choose(Wrap::Inside)
+            } else {
+                Some(choose(Wrap::Both))
+                    .filter(|c| c.2.holds)
+                    .or_else(|| {
+                        [choose(Wrap::Right), choose(Wrap::Bottom)]
+                            .into_iter()
+                            .filter(|c| c.2.holds)
+                            .min_by(|a, b| a.2.error.total_cmp(&b.2.error))
+                    })
+                    .unwrap_or_else(|| choose(Wrap::Inside))
+            };
+            let mut tile = canvas.clone();
+            let patch = insert_patch(&mut tile, sample, chosen.source, at, s.belt, &settings);
+            let share = template_share(&tile.crop(0, 0, tw, th), &tile0);
+            Rung {
+                kind,
+                chosen,
+                tile,
+                patch,
+                pull,
+                share,
+            }
+        };
+        // The weakest pull that keeps the derived tiles' mean template
+        // share so far within the budget, or else the rung that keeps least.
+        let allowed = s.template_share * k as f64 - spent;
+        let mut best: Option<Rung> = None;
+        for pull in pull_ladder(s.pull) {
+            let r = rung(pull);
+            let within = r.share <= allowed;
+            if best.as_ref().is_none_or(|b| r.share < b.share) {
+                best = Some(r);
+            }
+            if within {
+                break;
+            }
         }
+        let Rung {
+            kind,
+            chosen,
+            mut tile,
+            patch,
+            pull,
+            share,
+        } = best.expect("the ladder has a first rung");
+        spent += share;
+        let Chosen {
+            source,
+            random_mean,
+            ..
+        } = chosen;
         taken.push(source);
         let mut extra = Vec::new();
         for (e, inner) in extra_targets(tw, th, s, k).into_iter().enumerate() {
@@ -486,7 +632,7 @@ pub fn make_tile_set(
                 stitch: &stitch_settings,
                 joints: None,
             };
-            let (source, _, _) = choose_patch(&tile, sample, inner, &taken, key, s, cutting);
+            let source = choose_patch(&tile, sample, inner, &taken, key, s, cutting).source;
             extra.push(insert_patch(
                 &mut tile,
                 sample,
@@ -500,7 +646,9 @@ pub fn make_tile_set(
         tiles.push(tile.crop(0, 0, tw, th));
         derived.push(DerivedTile {
             patch,
-            wrapped,
+            wrap: kind,
+            pull,
+            template_share: share,
             extra,
             random_mean_path_error: random_mean,
             seconds: t.elapsed().as_secs_f64(),
@@ -516,4 +664,34 @@ pub fn make_tile_set(
         template_seconds,
         derived,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_pull_ladder_doubles_from_the_least_pull_to_the_largest() {
+        let from4: Vec<f32> = pull_ladder(4.0).collect();
+        assert_eq!(from4.first(), Some(&4.0));
+        assert_eq!(from4.last(), Some(&PULL_MAX));
+        assert!(from4.windows(2).all(|p| p[1] > p[0] && p[1] <= 2.0 * p[0]));
+        let from0: Vec<f32> = pull_ladder(0.0).take(3).collect();
+        assert_eq!(from0, [0.0, 1.0, 2.0]);
+        assert_eq!(pull_ladder(PULL_MAX).collect::<Vec<_>>(), [PULL_MAX]);
+    }
+
+    #[test]
+    fn template_share_counts_the_pixels_equal_to_the_template_s() {
+        let mut t = ColorImage::new(4, 5);
+        let template = t.clone();
+        assert_eq!(template_share(&t, &template), 1.0);
+        for x in 1..4 {
+            for y in 1..5 {
+                t.set(x, y, [9, 9, 9]);
+            }
+        }
+        // Only the first column and row (4 + 5 - 1 = 8 of 20) stay.
+        assert!((template_share(&t, &template) - 8.0 / 20.0).abs() < 1e-12);
+    }
 }
