@@ -191,7 +191,7 @@ fn settings(tiles: usize) -> TileSetSettings {
         belt: 10,
         margin: 2,
         pull: 0.0,
-        template_share: 1.0,
+        max_overlap: 1.0,
         template_candidates: 1,
         candidates: 24,
         refine: 4,
@@ -875,7 +875,7 @@ fn somol_set(sample: &ColorImage, side: usize, paper: bool) -> tiles::TileSet {
         s.belt = s.overlap;
         s.margin = 2;
         s.pull = 0.0;
-        s.template_share = 1.0;
+        s.max_overlap = 1.0;
         s.template_candidates = 1;
     }
     tiles::make_tile_set(sample, None, &s, &Silent).unwrap()
@@ -1011,11 +1011,11 @@ fn a_patch_that_cannot_wrap_both_edges_wraps_one_and_keeps_the_other_edge_the_te
 }
 
 #[test]
-fn the_pull_ladder_keeps_the_mean_template_share_in_budget_and_no_budget_fails() {
+fn the_pull_ladder_keeps_the_set_s_overlap_in_budget_and_no_budget_fails() {
     // Small tiles, where the template's first column and row alone are 6%
-    // of a tile: the weakest pull leaves more of the template than the
-    // budget, so tiles climb the ladder; without a budget none does and the
-    // set shares more.
+    // of a tile: at the weakest pull the tiles share more than the budget,
+    // so tiles climb the ladder; without a budget none does and the set
+    // shares more.
     let sample = texture("brick_color_96.png");
     let mut s = tiles::SomolConfig {
         tile_size: Some(40),
@@ -1023,14 +1023,11 @@ fn the_pull_ladder_keeps_the_mean_template_share_in_budget_and_no_budget_fails()
     }
     .settings(&sample, None)
     .unwrap();
-    let budget = s.template_share;
+    let budget = s.max_overlap;
     let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
     let t0 = &set.tiles[0];
-    let shares: Vec<f64> = set.tiles[1..]
-        .iter()
-        .map(|t| tiles::tileset::template_share(t, t0))
-        .collect();
-    for (d, &share) in set.derived.iter().zip(&shares) {
+    for (d, t) in set.derived.iter().zip(&set.tiles[1..]) {
+        let share = tiles::tileset::template_share(t, t0);
         assert!(
             (d.template_share - share).abs() < 1e-12,
             "reported {} against {share}",
@@ -1038,30 +1035,19 @@ fn the_pull_ladder_keeps_the_mean_template_share_in_budget_and_no_budget_fails()
         );
         assert!(d.pull >= s.pull);
     }
-    let mean = shares.iter().sum::<f64>() / shares.len() as f64;
-    assert!(
-        mean <= budget,
-        "mean template share {mean} over the budget {budget}"
-    );
     assert!(
         set.derived.iter().any(|d| d.pull > s.pull),
         "no tile needed a stronger pull"
     );
-    let (ok_now, o) = overlap_within_bound(&set.tiles);
-    assert!(ok_now, "tile_overlap {o}");
+    // The budget is the measure's own mean over pairs of tiles.
+    let o = compare::tile_overlap(&set.tiles).unwrap();
+    assert!(o <= budget, "tile_overlap {o} over the budget {budget}");
     // The planted defect: no budget, the least pull everywhere.
-    s.template_share = 1.0;
+    s.max_overlap = 1.0;
     let loose = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
     assert!(loose.derived.iter().all(|d| d.pull == s.pull));
-    let loose_mean = loose.tiles[1..]
-        .iter()
-        .map(|t| tiles::tileset::template_share(t, &loose.tiles[0]))
-        .sum::<f64>()
-        / shares.len() as f64;
-    assert!(
-        loose_mean > budget,
-        "without a budget the mean share is {loose_mean}"
-    );
+    let lo = compare::tile_overlap(&loose.tiles).unwrap();
+    assert!(lo > budget, "without a budget tile_overlap is {lo}");
 }
 
 #[test]

@@ -64,16 +64,16 @@ pub struct MakeArgs {
     pub belt: Option<usize>,
     /// Least pull of the patch paths towards the tile's edge, in RGB
     /// distance per pixel of the belt (0: the paper's search). Each tile
-    /// doubles it while the tiles' mean template share is over
-    /// --template-share.
+    /// doubles it while the set's mean overlap is over --max-overlap.
     #[arg(long, default_value_t = SomolConfig::default().pull)]
     pub pull: f32,
-    /// Mean share of the derived tiles, the first column and row every tile
-    /// keeps included, that may stay the template's (1: no limit, the least
-    /// pull everywhere). Tiles that share less look less alike; a lower
-    /// budget pulls the stitch paths straighter.
-    #[arg(long, default_value_t = SomolConfig::default().template_share)]
-    pub template_share: f64,
+    /// Mean share of equal pixels between two tiles of the set (what
+    /// `texsyn compare set/` reports as tile_overlap) that the stitch paths
+    /// are pulled to keep (1: no limit, the least pull everywhere). Tiles
+    /// that share less look less alike; a lower budget pulls the paths
+    /// straighter.
+    #[arg(long, default_value_t = SomolConfig::default().max_overlap)]
+    pub max_overlap: f64,
     /// Template placements stitched and compared, at the overlap and twice it
     /// (1: the paper's single best by border error).
     #[arg(long, default_value_t = SomolConfig::default().template_candidates)]
@@ -141,7 +141,7 @@ impl TryFrom<&MakeArgs> for MakeConfig {
             overlap: a.overlap,
             belt: a.belt,
             pull: a.pull,
-            template_share: a.template_share,
+            max_overlap: a.max_overlap,
             template_candidates: a.template_candidates,
             candidates: a.candidates,
             path: a.path,

@@ -32,11 +32,11 @@ pub const TEMPLATES: RangeInclusive<usize> = 1..=64;
 /// Largest pull of the patch paths, per pixel of the belt.
 pub const PULL_MAX: f32 = 1000.0;
 /// Least pull of the patch paths towards the tile's edge by default (each
-/// tile doubles it while the tiles' mean template share is over budget).
+/// tile doubles it while the set's mean overlap is over budget).
 pub const DEFAULT_PULL: f32 = 4.0;
-/// Mean share of the derived tiles (their first column and row included)
-/// that may stay the template's by default.
-pub const DEFAULT_TEMPLATE_SHARE: f64 = 0.09;
+/// Mean share of equal pixels between two tiles of a set that the pulls
+/// keep to by default.
+pub const DEFAULT_MAX_OVERLAP: f64 = 0.09;
 /// Border strip of every derived tile that stays the template's: one pixel,
 /// so both sides of every joint are the template's own continuation.
 pub const MARGIN: usize = 0;
@@ -76,13 +76,12 @@ pub struct SomolConfig {
     /// Patch belt `w_P`; default [`default_belt`] (the paper's is `w_T`).
     pub belt: Option<usize>,
     /// Least pull of the patch paths towards the tile's edge (0 = the
-    /// paper's search); each tile doubles it until the derived tiles' mean
-    /// template share is within `template_share`.
+    /// paper's search); each tile doubles it until the set's mean overlap
+    /// is within `max_overlap`.
     pub pull: f32,
-    /// Mean share of the derived tiles, their first column and row
-    /// included, that may stay the template's (1 = no limit: the least pull
-    /// everywhere).
-    pub template_share: f64,
+    /// Mean share of equal pixels between two tiles of the set (1 = no
+    /// limit: the least pull everywhere).
+    pub max_overlap: f64,
     /// Template placements stitched and compared (1 = the paper's single
     /// best by border error).
     pub template_candidates: usize,
@@ -99,7 +98,7 @@ impl Default for SomolConfig {
             overlap: None,
             belt: None,
             pull: DEFAULT_PULL,
-            template_share: DEFAULT_TEMPLATE_SHARE,
+            max_overlap: DEFAULT_MAX_OVERLAP,
             template_candidates: 3,
             candidates: 48,
             path: PathSearch::Oscillating,
@@ -130,9 +129,9 @@ impl SomolConfig {
             self.pull
         );
         ensure!(
-            (0.0..=1.0).contains(&self.template_share),
-            "--template-share {} is out of range: give 0..=1",
-            self.template_share
+            (0.0..=1.0).contains(&self.max_overlap),
+            "--max-overlap {} is out of range: give 0..=1",
+            self.max_overlap
         );
         if let Some(t) = self.tile_size {
             check_range("--tile-size", t, &TILE_SIZE)?;
@@ -180,7 +179,7 @@ impl SomolConfig {
             belt,
             margin: MARGIN,
             pull: self.pull,
-            template_share: self.template_share,
+            max_overlap: self.max_overlap,
             template_candidates: self.template_candidates,
             candidates: self.candidates,
             refine: 4,
@@ -331,8 +330,19 @@ mod tests {
         let s = SomolConfig::default().settings(&sample, None).unwrap();
         assert_eq!(
             (s.max_size, s.min_size, s.overlap, s.belt, s.margin),
-            (100, 80, 10, 4, 0)
+            (100, 80, 10, 10, 0),
+            "the belt is the paper's w_P = w_T"
         );
+        for bad in [-0.1, 1.5, f64::NAN] {
+            let e = SomolConfig {
+                max_overlap: bad,
+                ..Default::default()
+            }
+            .validate()
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("--max-overlap"), "{e}");
+        }
         let given = SomolConfig {
             tile_size: Some(64),
             ..Default::default()

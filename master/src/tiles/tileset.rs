@@ -33,12 +33,12 @@ pub struct TileSetSettings {
     /// the belt ([`StitchSettings::pull`]; 0 = the paper's search).
     #[serde(default)]
     pub pull: f32,
-    /// Mean share of the derived tiles (their first column and row
-    /// included) that may stay the template's: each tile's pull is doubled
-    /// (up to [`PULL_MAX`]) while the mean so far is over it
-    /// ([`template_share`]; 1 = no limit).
+    /// Mean share of equal pixels between two tiles of the set (what
+    /// `texsyn compare` reports as `tile_overlap`) that the pulls keep to:
+    /// each tile's pull is doubled (up to [`PULL_MAX`]) while the mean over
+    /// the pairs so far is over it (1 = no limit).
     #[serde(default = "no_limit")]
-    pub template_share: f64,
+    pub max_overlap: f64,
     /// Template placements whose stitches are made and compared
     /// ([`choose_template`]'s best few by border error; 1 = the paper's).
     #[serde(default = "one")]
@@ -82,13 +82,14 @@ fn pull_ladder(least: f32) -> impl Iterator<Item = f32> {
     })
 }
 
-/// The share of `tile`'s pixels equal to the `template`'s at the same
-/// place, its first column and row (which every tile keeps) included.
-pub fn template_share(tile: &ColorImage, template: &ColorImage) -> f64 {
+/// The share of `tile`'s pixels equal to `other`'s at the same place (for a
+/// derived tile and the template: its template share, the first column and
+/// row that every tile keeps included).
+pub fn template_share(tile: &ColorImage, other: &ColorImage) -> f64 {
     let (w, h) = (tile.width, tile.height);
     let kept = (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .filter(|&(x, y)| tile.get(x, y) == template.get(x, y))
+        .filter(|&(x, y)| tile.get(x, y) == other.get(x, y))
         .count();
     kept as f64 / (w * h).max(1) as f64
 }
@@ -160,7 +161,8 @@ impl Wrap {
 }
 
 /// One rung of a tile's pull ladder: where its patch wraps, the choice, the
-/// tile (on the canvas) with the patch in, the pull and the template share.
+/// tile (on the canvas) with the patch in, the pull, the template share and
+/// the equal-pixel shares with the tiles before it, summed.
 struct Rung {
     kind: Wrap,
     chosen: Chosen,
@@ -168,6 +170,7 @@ struct Rung {
     patch: PatchReport,
     pull: f32,
     share: f64,
+    shared: f64,
 }
 
 /// A tile set: the template and the tiles derived from it.
@@ -491,8 +494,8 @@ pub const EXTRA_FROM: usize = 128;
 /// ([`wrap_ratio`]) step more than the template's, or its interior's
 /// median, wraps one edge only ([`Wrap`]), or else takes the patch inside
 /// its own edges. The paths are pulled towards the edge by the weakest pull
-/// of [`pull_ladder`] that keeps the tiles' mean [`template_share`] within
-/// budget, so the tile's own content covers most of it (§4: "the patching
+/// of [`pull_ladder`] that keeps the mean share of equal pixels over the
+/// set's pairs of tiles so far within `max_overlap`, so the tile's own content covers most of it (§4: "the patching
 /// process must affect most of the tile image surface") while the paths
 /// still bend round the texture's objects where the budget leaves room.
 /// Large tiles then take half-size patches from yet other places inside
@@ -548,7 +551,8 @@ pub fn make_tile_set(
     };
     let mut tiles = vec![tile0.clone()];
     let mut derived = Vec::new();
-    let mut spent = 0.0;
+    // Equal-pixel shares summed over the pairs of tiles made so far.
+    let (mut spent, mut pairs) = (0.0, 0usize);
     for k in 1..s.tiles {
         let t = std::time::Instant::now();
         // One rung of the pull ladder: the patch chosen and inserted with
@@ -586,7 +590,9 @@ pub fn make_tile_set(
             };
             let mut tile = canvas.clone();
             let patch = insert_patch(&mut tile, sample, chosen.source, at, s.belt, &settings);
-            let share = template_share(&tile.crop(0, 0, tw, th), &tile0);
+            let own = tile.crop(0, 0, tw, th);
+            let share = template_share(&own, &tile0);
+            let shared = tiles.iter().map(|t| template_share(&own, t)).sum();
             Rung {
                 kind,
                 chosen,
@@ -594,16 +600,18 @@ pub fn make_tile_set(
                 patch,
                 pull,
                 share,
+                shared,
             }
         };
-        // The weakest pull that keeps the derived tiles' mean template
-        // share so far within the budget, or else the rung that keeps least.
-        let allowed = s.template_share * k as f64 - spent;
+        // The weakest pull that keeps the mean share of equal pixels over
+        // the pairs so far within the budget, or else the rung that shares
+        // least with the tiles before it.
+        let allowed = s.max_overlap * (pairs + k) as f64 - spent;
         let mut best: Option<Rung> = None;
         for pull in pull_ladder(s.pull) {
             let r = rung(pull);
-            let within = r.share <= allowed;
-            if best.as_ref().is_none_or(|b| r.share < b.share) {
+            let within = r.shared <= allowed;
+            if best.as_ref().is_none_or(|b| r.shared < b.shared) {
                 best = Some(r);
             }
             if within {
@@ -617,8 +625,10 @@ pub fn make_tile_set(
             patch,
             pull,
             share,
+            shared,
         } = best.expect("the ladder has a first rung");
-        spent += share;
+        spent += shared;
+        pairs += k;
         let Chosen {
             source,
             random_mean,
