@@ -142,20 +142,24 @@ pub struct CopyShare {
 
 /// The share of B's 8×8 patches found verbatim in A at the single most common
 /// offset, modulo A's size (a tiling of A scores 1). Offsets are voted for by
-/// the patches whose content occurs at most a few times in A, then the best
-/// few are checked exactly against every patch of B.
+/// the patches whose content occurs at most a few times among A's patches on
+/// the torus (those across its edges too, as the share counts them), then
+/// the best few are checked exactly against every patch of B.
 pub fn copy_share(a: &ColorImage, b: &ColorImage) -> CopyShare {
     let (pa, pb) = (Packed::of(a), Packed::of(b));
-    let (aw, _) = pa.patches();
     let (bw, bh) = pb.patches();
     let none = CopyShare {
         share: 0.0,
         offset: [0, 0],
     };
-    if aw == 0 || bw == 0 || bh == 0 {
+    if a.width == 0 || a.height == 0 || bw == 0 || bh == 0 {
         return none;
     }
-    let index = sorted_hashes(&pa);
+    // A's patches on the torus, as the share counts them: A continued by
+    // its own first columns and rows, one patch per pixel of A.
+    let torus = Packed::of(&wrap_padded(a, PATCH - 1));
+    let (aw, _) = torus.patches();
+    let index = sorted_hashes(&torus);
     let hb = pb.patch_hashes();
     // Votes per offset, and one offset of any match (flat images only have
     // ambiguous matches).
@@ -171,7 +175,7 @@ pub fn copy_share(a: &ColorImage, b: &ColorImage) -> CopyShare {
                     let len = run.clone().count();
                     for &(_, i) in run.take(MAX_VOTERS) {
                         let (ax, ay) = (i as usize % aw, i as usize / aw);
-                        if !pa.same_patch(ax, ay, &pb, x, y) {
+                        if !torus.same_patch(ax, ay, &pb, x, y) {
                             continue;
                         }
                         let o = (
@@ -211,6 +215,18 @@ pub fn copy_share(a: &ColorImage, b: &ColorImage) -> CopyShare {
             offset: [o.0, o.1],
         })
         .fold(none, |best, c| if c.share > best.share { c } else { best })
+}
+
+/// `img` continued periodically by `pad` columns and rows.
+fn wrap_padded(img: &ColorImage, pad: usize) -> ColorImage {
+    let (w, h) = (img.width, img.height);
+    let mut out = ColorImage::new(w + pad, h + pad);
+    for y in 0..h + pad {
+        for x in 0..w + pad {
+            out.set(x, y, img.get(x % w, y % h));
+        }
+    }
+    out
 }
 
 /// The share of B's patches equal to A's (wrapped) patch at offset `o`: one
