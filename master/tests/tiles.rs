@@ -1027,7 +1027,7 @@ fn the_pull_ladder_keeps_the_set_s_overlap_in_budget_and_no_budget_fails() {
     let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
     let t0 = &set.tiles[0];
     for (d, t) in set.derived.iter().zip(&set.tiles[1..]) {
-        let share = tiles::tileset::template_share(t, t0);
+        let share = tiles::tileset::equal_share(t, t0);
         assert!(
             (d.template_share - share).abs() < 1e-12,
             "reported {} against {share}",

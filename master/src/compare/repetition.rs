@@ -157,7 +157,7 @@ pub fn copy_share(a: &ColorImage, b: &ColorImage) -> CopyShare {
     }
     // A's patches on the torus, as the share counts them: A continued by
     // its own first columns and rows, one patch per pixel of A.
-    let torus = Packed::of(&wrap_padded(a, PATCH - 1));
+    let torus = Packed::of(&a.wrap_padded(PATCH - 1));
     let (aw, _) = torus.patches();
     let index = sorted_hashes(&torus);
     let hb = pb.patch_hashes();
@@ -215,18 +215,6 @@ pub fn copy_share(a: &ColorImage, b: &ColorImage) -> CopyShare {
             offset: [o.0, o.1],
         })
         .fold(none, |best, c| if c.share > best.share { c } else { best })
-}
-
-/// `img` continued periodically by `pad` columns and rows.
-fn wrap_padded(img: &ColorImage, pad: usize) -> ColorImage {
-    let (w, h) = (img.width, img.height);
-    let mut out = ColorImage::new(w + pad, h + pad);
-    for y in 0..h + pad {
-        for x in 0..w + pad {
-            out.set(x, y, img.get(x % w, y % h));
-        }
-    }
-    out
 }
 
 /// The share of B's patches equal to A's (wrapped) patch at offset `o`: one

@@ -124,6 +124,20 @@ impl ColorImage {
         }
         out
     }
+
+    /// The image continued periodically by `pad` columns on the right and
+    /// `pad` rows at the bottom: `(w + pad)`×`(h + pad)`, pixel (x, y) being
+    /// the image's (x mod w, y mod h).
+    pub fn wrap_padded(&self, pad: usize) -> Self {
+        let (w, h) = (self.width, self.height);
+        let mut out = Self::new(w + pad, h + pad);
+        for y in 0..h + pad {
+            for x in 0..w + pad {
+                out.set(x, y, self.get(x % w, y % h));
+            }
+        }
+        out
+    }
 }
 
 /// An 8-bit single-channel image, row-major.

@@ -648,3 +648,16 @@ fn coordinate_maps_and_volumes_refuse_special_files() {
     );
     assert!(e.contains("not a regular file"), "{e}");
 }
+
+#[test]
+fn wrap_padding_continues_the_image_periodically() {
+    let img = pattern(5, 3);
+    let out = img.wrap_padded(7);
+    assert_eq!((out.width, out.height), (12, 10));
+    for y in 0..10 {
+        for x in 0..12 {
+            assert_eq!(out.get(x, y), img.get(x % 5, y % 3), "({x}, {y})");
+        }
+    }
+    assert_eq!(img.wrap_padded(0).rgb, img.rgb);
+}

@@ -82,10 +82,10 @@ fn pull_ladder(least: f32) -> impl Iterator<Item = f32> {
     })
 }
 
-/// The share of `tile`'s pixels equal to `other`'s at the same place (for a
-/// derived tile and the template: its template share, the first column and
-/// row that every tile keeps included).
-pub fn template_share(tile: &ColorImage, other: &ColorImage) -> f64 {
+/// The share of `tile`'s pixels equal to `other`'s at the same place; of a
+/// derived tile against the template, its template share (the first column
+/// and row that every tile keeps included).
+pub fn equal_share(tile: &ColorImage, other: &ColorImage) -> f64 {
     let (w, h) = (tile.width, tile.height);
     let kept = (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
@@ -116,7 +116,7 @@ pub struct DerivedTile {
     #[serde(default)]
     pub wrap: Wrap,
     /// The pull its paths took ([`pull_ladder`]) and the share of it that
-    /// stayed the template's ([`template_share`]).
+    /// stayed the template's ([`equal_share`]).
     #[serde(default)]
     pub pull: f32,
     #[serde(default)]
@@ -457,22 +457,6 @@ fn extra_targets(tw: usize, th: usize, s: &TileSetSettings, k: usize) -> Vec<Rec
         .collect()
 }
 
-/// The `w`×`h` tile continued periodically by one column and one row:
-/// `(w + 1)`×`(h + 1)`, its last column the tile's first and its last row
-/// the tile's first. Every derived tile keeps the template's first column
-/// and row, so this continuation is what lies beyond its right and bottom
-/// edges in any arrangement of the set.
-pub fn wrap_extended(tile: &ColorImage) -> ColorImage {
-    let (w, h) = (tile.width, tile.height);
-    let mut out = ColorImage::new(w + 1, h + 1);
-    for y in 0..=h {
-        for x in 0..=w {
-            out.set(x, y, tile.get(x % w, y % h));
-        }
-    }
-    out
-}
-
 /// Tiles at least this large (their smaller side) get extra patches inside
 /// their main one, one per this many pixels of side, squared.
 pub const EXTRA_FROM: usize = 128;
@@ -489,14 +473,16 @@ pub const EXTRA_FROM: usize = 128;
 /// over (so the tiles differ); the best is refined pixel by pixel on the
 /// `±refine` neighbourhood, as the paper does. With no `margin`, the patch
 /// covers the template continued by its first column and row
-/// ([`wrap_extended`]): every tile keeps only that column and row, which
+/// ([`ColorImage::wrap_padded`] by one): every tile keeps only that
+/// column and row, which
 /// its right and bottom neighbours see. A tile whose wrap joints
 /// ([`wrap_ratio`]) step more than the template's, or its interior's
 /// median, wraps one edge only ([`Wrap`]), or else takes the patch inside
 /// its own edges. The paths are pulled towards the edge by the weakest pull
 /// of [`pull_ladder`] that keeps the mean share of equal pixels over the
-/// set's pairs of tiles so far within `max_overlap`, so the tile's own content covers most of it (§4: "the patching
-/// process must affect most of the tile image surface") while the paths
+/// set's pairs of tiles so far within `max_overlap`, so the tile's own
+/// content covers most of it (§4: "the patching process must affect most
+/// of the tile image surface") while the paths
 /// still bend round the texture's objects where the budget leaves room.
 /// Large tiles then take half-size patches from yet other places inside
 /// ([`extra_targets`]).
@@ -524,7 +510,7 @@ pub fn make_tile_set(
     // first column and row, and reach into that continuation.
     let wrap = s.margin == 0;
     let canvas = if wrap {
-        wrap_extended(&tile0)
+        tile0.wrap_padded(1)
     } else {
         tile0.clone()
     };
@@ -591,8 +577,9 @@ pub fn make_tile_set(
             let mut tile = canvas.clone();
             let patch = insert_patch(&mut tile, sample, chosen.source, at, s.belt, &settings);
             let own = tile.crop(0, 0, tw, th);
-            let share = template_share(&own, &tile0);
-            let shared = tiles.iter().map(|t| template_share(&own, t)).sum();
+            // Against every tile so far; the first is the template.
+            let shares: Vec<f64> = tiles.iter().map(|t| equal_share(&own, t)).collect();
+            let (share, shared) = (shares[0], shares.iter().sum());
             Rung {
                 kind,
                 chosen,
@@ -692,16 +679,16 @@ mod tests {
     }
 
     #[test]
-    fn template_share_counts_the_pixels_equal_to_the_template_s() {
+    fn equal_share_counts_the_pixels_equal_to_the_other_image_s() {
         let mut t = ColorImage::new(4, 5);
         let template = t.clone();
-        assert_eq!(template_share(&t, &template), 1.0);
+        assert_eq!(equal_share(&t, &template), 1.0);
         for x in 1..4 {
             for y in 1..5 {
                 t.set(x, y, [9, 9, 9]);
             }
         }
         // Only the first column and row (4 + 5 - 1 = 8 of 20) stay.
-        assert!((template_share(&t, &template) - 8.0 / 20.0).abs() < 1e-12);
+        assert!((equal_share(&t, &template) - 8.0 / 20.0).abs() < 1e-12);
     }
 }
