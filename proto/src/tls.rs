@@ -361,6 +361,9 @@ pub fn hint(text: &str, used: Used) -> Option<&'static str> {
         "broken pipe",
         "frame with invalid size",
         "connection closed",
+        // hyper's word when the peer hung up before the HTTP/2 handshake
+        // finished, as a TLS worker does on a plaintext preface.
+        "connection was not ready",
     ]) {
         Some(match used {
             Used::Plain => "if the worker serves TLS, write https://host:port or give --tls-ca FILE",
@@ -470,6 +473,12 @@ mod tests {
         assert!(hint("connection closed", Used::Plain)
             .unwrap()
             .contains("https://"));
+        assert!(hint(
+            "Cancelled: operation was canceled: transport error: operation was canceled: connection was not ready",
+            Used::Plain
+        )
+        .unwrap()
+        .contains("https://"));
         assert!(hint("connection closed", Used::Tls)
             .unwrap()
             .contains("--tls-client-cert"));
