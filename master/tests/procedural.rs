@@ -683,3 +683,46 @@ fn labelled_photos_seed_their_rows_and_a_planted_label_fails() {
         );
     }
 }
+
+/// Noise against scattered features (§3.3): split at the median, the
+/// labelled photos of spots, beans and caustic cells keep one tone joined
+/// and break the other into pieces, the burl and the rock break both; the
+/// cells, spots and clouds shaders do the same at their middle parameters
+/// (turbulence does not: its creases join up round bright pieces). This is
+/// what the structure term of an isotropic target adds to the periods, and
+/// what seeds a scattered shader's count: the leopard's pieces put the
+/// cells shader at its hand-counted 4 rosettes per side.
+#[test]
+fn the_tones_pieces_tell_scattered_features_from_noise() {
+    use texsyn::procedural::objective::periodicity_of;
+    use texsyn::procedural::periodicity::{seeded, SCATTERED};
+    use texsyn::procedural::pieces::pieces;
+    let of_photo = |name: &str| {
+        let img = texsyn::procedural::analysis_image(&common::texture(name), 128);
+        periodicity_of(&img).0
+    };
+    for name in [
+        "leopard_color_64.png",
+        "coffee_beans_color_256.png",
+        "water_pool_color_94.png",
+    ] {
+        let p = of_photo(name).pieces;
+        assert!(p.separation >= SCATTERED, "{name}: {p:?}");
+    }
+    for name in ["walnut_color_128.png", "mossy_rock_color_128.png"] {
+        let p = of_photo(name).pieces;
+        assert!(p.separation < SCATTERED, "{name}: {p:?}");
+    }
+    for (shader, scattered) in [("cells", true), ("spots", true), ("clouds", false)] {
+        let sh = by_name(shader).unwrap();
+        let mid: Vec<f64> = sh.params.iter().map(|p| p.from_unit(0.5)).collect();
+        let field = sh.render_field(&mid, 128, 128, 128);
+        let v: Vec<f64> = field.iter().map(|&x| f64::from(x)).collect();
+        let p = pieces(&v, 128);
+        assert_eq!(p.separation >= SCATTERED, scattered, "{shader}: {p:?}");
+    }
+    let cells = by_name("cells").unwrap();
+    let mid: Vec<f64> = cells.params.iter().map(|p| p.from_unit(0.5)).collect();
+    let params = seeded(cells, &mid, &of_photo("leopard_color_64.png")).expect("a count");
+    assert_eq!(params[0], 4.0, "{params:?}");
+}

@@ -11,6 +11,8 @@
 //! - [`pattern`]: a shader with parameters and colours, rendered (§3.1).
 //! - [`periodicity`]: the target's periods, read from its autocorrelation:
 //!   the seeds of counts and angles and the structure term (§3.2.1, §3.3).
+//! - [`pieces`]: how the tones break into pieces: scattered features
+//!   against noise, in the structure term (§3.3).
 //! - [`arrangement`]: lattice, parallel, scattered or unordered, from the
 //!   periods and the spectrum: the shaders the global search tries (§3.3).
 //! - [`colour`]: the closed-form two-colour fit (§3.2).
@@ -39,6 +41,7 @@ pub mod local;
 pub mod objective;
 pub mod pattern;
 pub mod periodicity;
+pub mod pieces;
 pub mod recovery;
 pub mod sampling;
 pub mod search;

@@ -24,6 +24,10 @@ const PROMINENCE: f64 = 0.08;
 /// the direction (a weaker earlier bump is texture within the period).
 const FIRST_PEAK_SHARE: f64 = 0.6;
 
+/// A target whose tones' separation ([`super::pieces`]) reaches this shows
+/// scattered features: a scattered shader's count is seeded from its pieces.
+pub const SCATTERED: f64 = 0.5;
+
 /// The first clear autocorrelation peak of one direction.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Peak {
@@ -46,6 +50,9 @@ pub struct Periodicity {
     /// The features' frequency in cycles per image
     /// ([`super::arrangement::feature_frequency`]; 0 for a flat image).
     pub scale: f64,
+    /// How one tone joins up while the other breaks into pieces, and into
+    /// how many ([`super::pieces`]): scattered features against noise.
+    pub pieces: super::pieces::Pieces,
 }
 
 impl Periodicity {
@@ -97,6 +104,7 @@ impl Periodicity {
             lines: profiles.iter().map(|p| first_peak(p)).collect(),
             radial: first_peak(&radial),
             scale: super::arrangement::feature_frequency(v, n),
+            pieces: super::pieces::pieces(v, n),
         }
     }
 
@@ -207,22 +215,33 @@ pub fn seeded(s: &Shader, base: &[f64], per: &Periodicity) -> Option<Vec<f64>> {
             p[angle] = a;
         }
         Layout::Scatter { count } => {
-            // The count whose render has the target's feature frequency
-            // (the frequency of a count depends on the shader's other
+            // The count whose render has the target's number of pieces
+            // where the target's features stand apart, else its feature
+            // frequency (what a count gives depends on the shader's other
             // parameters, so it is measured, not assumed).
-            if per.scale <= 0.0 {
+            let size = per.size.clamp(8, 128);
+            let scattered = per.pieces.separation >= SCATTERED && per.pieces.count > 0.0;
+            let want = if scattered {
+                per.pieces.count * (size as f64 / per.size as f64).powi(2)
+            } else {
+                per.scale
+            };
+            if want <= 0.0 {
                 return None;
             }
             let spec = &s.params[count];
-            let size = per.size.clamp(8, 128);
             let mut best = (f64::INFINITY, p[count]);
             let mut c = spec.min.ceil();
             while c <= spec.max {
                 p[count] = c;
                 let f = s.render_field(&p, size, size, size);
                 let v: Vec<f64> = f.iter().map(|&x| f64::from(x)).collect();
-                let got = super::arrangement::feature_frequency(&v, size);
-                let miss = (got / per.scale).ln().abs();
+                let got = if scattered {
+                    super::pieces::pieces(&v, size).count
+                } else {
+                    super::arrangement::feature_frequency(&v, size)
+                };
+                let miss = (got / want).ln().abs();
                 if got > 0.0 && miss < best.0 {
                     best = (miss, c);
                 }

@@ -17,6 +17,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use serde_json::{json, Value};
 
+use super::arrangement::Arrangement;
 use super::catalogue::{describe, selected, unit_distance, Catalogue};
 use super::local::{refine, refine_with_integers, Effort};
 use super::objective::{Eval, Target};
@@ -177,13 +178,26 @@ struct Start {
 /// other (the objectives are about 1 to 2, the term 0 to 1).
 const STRUCTURE_WEIGHT: f64 = 1.0;
 
-/// The structure term of `params` of `sh` against the target.
+/// Weight of the pieces' separation difference in the structure term of an
+/// isotropic target (the separations differ by 0 to 1).
+const SEPARATION_WEIGHT: f64 = 1.0;
+
+/// The structure term of `params` of `sh` against the target: how
+/// differently they repeat ([`Periodicity::distance`]) and, for an
+/// isotropic target, how differently their tones break into pieces
+/// ([`super::pieces`]): noise and scattered features repeat alike and
+/// differ there. In lattices and parallel lines the pieces follow joint
+/// widths and gaps, not the family, so they are left out.
 fn structure_term(sh: &Shader, params: &[f64], target: &Target) -> f64 {
     let n = target.periodicity.size;
     let field = sh.render_field(params, n, n, n);
-    target
-        .periodicity
-        .distance(&Periodicity::of_field(&field, n))
+    let render = Periodicity::of_field(&field, n);
+    let mut t = target.periodicity.distance(&render);
+    if target.arrangement.arrangement == Arrangement::Isotropic {
+        t += SEPARATION_WEIGHT
+            * (target.periodicity.pieces.separation - render.pieces.separation).abs();
+    }
+    t
 }
 
 /// The global search: starting points per shader, in admissibility order.
