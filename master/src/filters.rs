@@ -77,6 +77,13 @@ pub fn box_blur_lines(v: &mut [f64], n: usize, lines: usize, r: usize, step: usi
     }
 }
 
+/// [`box_blur_lines`] along the rows, then the columns, of a `w`×`h`
+/// buffer (row-major), in place: a wrapping 2-D box blur of radius `r`.
+pub fn box_blur_2d(v: &mut [f64], w: usize, h: usize, r: usize) {
+    box_blur_lines(v, w, h, r, 1, w);
+    box_blur_lines(v, h, w, r, w, 1);
+}
+
 /// 2-D FFT in place of a `w`×`h` buffer (row by row): rows `0..rows` (the
 /// only ones that may be non-zero) through `row_fft`, then every column
 /// through `col_fft`. The plans' direction decides forward or inverse.

@@ -14,7 +14,7 @@ use super::descriptor::Structure;
 use super::periodicity::Periodicity;
 use super::shaders::{colourise, Kind, Shader};
 use crate::compare::Descriptors;
-use crate::filters::box_blur_lines;
+use crate::filters::box_blur_2d;
 use crate::imaging::ColorImage;
 
 /// The centred square of `img`, resampled to `size`².
@@ -116,8 +116,7 @@ pub fn blurred_spectra(d: &Descriptors) -> Vec<Vec<f64>> {
             let r = (((4.0 * sigma * sigma + 1.0).sqrt() - 1.0) / 2.0).round() as usize;
             let mut out = low.clone();
             for _ in 0..3 {
-                box_blur_lines(&mut out, w, h, r, 1, w);
-                box_blur_lines(&mut out, h, w, r, w, 1);
+                box_blur_2d(&mut out, w, h, r);
             }
             let norm = out.iter().map(|x| x * x).sum::<f64>().sqrt();
             if norm > 0.0 {

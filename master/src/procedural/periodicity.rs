@@ -11,7 +11,7 @@
 use rustfft::{num_complex::Complex, FftPlanner};
 
 use super::shaders::{Layout, Shader};
-use crate::filters::{box_blur_lines, fft2};
+use crate::filters::{box_blur_2d, fft2};
 
 /// Directions in which the period is read, over 180°.
 pub const DIRECTIONS: usize = 36;
@@ -64,8 +64,7 @@ impl Periodicity {
         if low.len() == n * n && n > 0 {
             let r = (n / 32).max(1);
             for _ in 0..2 {
-                box_blur_lines(&mut low, n, n, r, 1, n);
-                box_blur_lines(&mut low, n, n, r, n, 1);
+                box_blur_2d(&mut low, n, n, r);
             }
         }
         let high: Vec<f64> = v.iter().zip(&low).map(|(a, b)| a - b).collect();

@@ -13,7 +13,7 @@
 //! [`Pieces::count`] is how many features the broken tone holds, the seed of
 //! a scattered shader's count.
 
-use crate::filters::box_blur_lines;
+use crate::filters::box_blur_2d;
 
 /// Pieces smaller than this (pixels at the analysis size) are grain, not
 /// features, and are not counted.
@@ -39,12 +39,10 @@ pub fn pieces(v: &[f64], n: usize) -> Pieces {
     }
     // A light blur against pixel grain, less a wide one against shading.
     let mut fine = v.to_vec();
-    box_blur_lines(&mut fine, n, n, 1, 1, n);
-    box_blur_lines(&mut fine, n, n, 1, n, 1);
+    box_blur_2d(&mut fine, n, n, 1);
     let mut low = fine.clone();
     let r = (n / 8).max(1);
-    box_blur_lines(&mut low, n, n, r, 1, n);
-    box_blur_lines(&mut low, n, n, r, n, 1);
+    box_blur_2d(&mut low, n, n, r);
     let high: Vec<f64> = fine.iter().zip(&low).map(|(a, b)| a - b).collect();
     let mut sorted = high.clone();
     sorted.sort_by(f64::total_cmp);
@@ -54,12 +52,7 @@ pub fn pieces(v: &[f64], n: usize) -> Pieces {
     }
     let upper: Vec<bool> = high.iter().map(|&x| x > median).collect();
     let (hi, lo) = (sizes(&upper, n, true), sizes(&upper, n, false));
-    let share = |s: &[usize]| {
-        let area: usize = s.iter().sum();
-        let top = s.iter().copied().filter(|&x| x >= MIN_PIECE).max();
-        top.map_or(0.0, |t| t as f64 / area as f64)
-    };
-    let (a, b) = (share(&hi), share(&lo));
+    let (a, b) = (largest_share(&hi), largest_share(&lo));
     let broken = if a < b { &hi } else { &lo };
     let kept: Vec<f64> = broken
         .iter()
@@ -78,15 +71,13 @@ pub fn pieces(v: &[f64], n: usize) -> Pieces {
     }
 }
 
-/// The largest 4-connected piece of pixels equal to `tone` as a share of
-/// all such pixels (pieces under [`MIN_PIECE`] left out of the largest
-/// only); 0 when there are none.
-#[cfg(test)]
-fn largest_share(mask: &[bool], n: usize, tone: bool) -> f64 {
-    let s = sizes(mask, n, tone);
-    let area: usize = s.iter().sum();
-    let top = s.into_iter().filter(|&x| x >= MIN_PIECE).max();
-    top.map_or(0.0, |t| t as f64 / area.max(1) as f64)
+/// The largest of the piece `sizes` of a tone as a share of the tone's
+/// area (pieces under [`MIN_PIECE`] left out of the largest only); 0 when
+/// there are none.
+fn largest_share(sizes: &[usize]) -> f64 {
+    let area: usize = sizes.iter().sum();
+    let top = sizes.iter().copied().filter(|&x| x >= MIN_PIECE).max();
+    top.map_or(0.0, |t| t as f64 / area as f64)
 }
 
 /// The sizes of the 4-connected pieces of pixels equal to `tone`.
@@ -176,15 +167,17 @@ mod tests {
             false, false, false, false,
             false, false, false, false,
         ];
-        assert_eq!(largest_share(&m, 4, true), 0.0);
-        assert_eq!(largest_share(&m, 4, false), 1.0);
+        assert_eq!(sizes(&m, 4, true), vec![3, 1]);
+        assert_eq!(sizes(&m, 4, false), vec![12]);
+        assert_eq!(largest_share(&sizes(&m, 4, true)), 0.0);
+        assert_eq!(largest_share(&sizes(&m, 4, false)), 1.0);
         let mut m2 = m;
         m2[4 + 2] = true;
         m2[4 + 3] = true;
-        // Now 3 + 2... the pieces {0,1,4} and {6,7}: none reaches 4 pixels.
-        assert_eq!(largest_share(&m2, 4, true), 0.0);
+        // The pieces {0,1,4} and {6,7}: neither reaches 4 pixels.
+        assert_eq!(largest_share(&sizes(&m2, 4, true)), 0.0);
         m2[2] = true;
         // {0,1,2,4,6,7} joined through 2 and 6: one piece of 6.
-        assert_eq!(largest_share(&m2, 4, true), 1.0);
+        assert_eq!(largest_share(&sizes(&m2, 4, true)), 1.0);
     }
 }
