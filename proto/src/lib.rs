@@ -10,7 +10,7 @@ pub mod tls;
 pub mod wire;
 
 /// Protocol version spoken by this build; master and worker refuse to talk across versions.
-pub const PROTOCOL_VERSION: u32 = 2;
+pub const PROTOCOL_VERSION: u32 = 3;
 
 #[allow(clippy::all, missing_docs)]
 pub mod v1 {

@@ -560,6 +560,47 @@ pub fn parse_listening_line(line: &str) -> Option<SocketAddr> {
     line.trim().strip_prefix("listening on ")?.parse().ok()
 }
 
+/// How often the carrier of a linked batch (the worker's stream, the master's
+/// part task) passes on the distances lowered since its last look.
+pub const LINK_INTERVAL: std::time::Duration = std::time::Duration::from_millis(1);
+
+/// The lowered distances of an `update` or `interim` message (query within a
+/// batch of `count`, distance), checked: the two lists equally long, every
+/// query inside the batch.
+pub fn lowered_from_proto(
+    queries: &[u32],
+    distances: &[u64],
+    count: usize,
+) -> Result<Vec<(usize, u64)>, String> {
+    if queries.len() != distances.len() {
+        return Err(format!(
+            "lower_query has {} and lower_distance {} entries; send one distance per query",
+            queries.len(),
+            distances.len()
+        ));
+    }
+    queries
+        .iter()
+        .zip(distances)
+        .map(|(&q, &d)| {
+            let q = q as usize;
+            if q < count {
+                Ok((q, d))
+            } else {
+                Err(format!(
+                    "lower_query {q} is outside the batch of {count} queries"
+                ))
+            }
+        })
+        .collect()
+}
+
+/// `changes` (query, distance) as the two lists of an `update` or `interim`
+/// message.
+pub fn lowered_to_proto(changes: &[(u32, u64)]) -> (Vec<u32>, Vec<u64>) {
+    changes.iter().copied().unzip()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -699,6 +740,7 @@ mod tests {
             per_query: 2,
             seconds: 0.0,
             prune: None,
+            ..Default::default()
         };
         assert_eq!(topk_hits(&r, 2).unwrap().len(), 2);
         assert!(topk_hits(&r, 3).is_err());

@@ -170,8 +170,7 @@ fn competing_jobs_and_a_thousand_streams_stay_within_the_budget() {
                         values: (0..8 * dims).map(|i| (i as u64 * 31 + k) as u8).collect(),
                         masks: vec![1; 8 * dims],
                         epoch: 0,
-                        bound_index: Vec::new(),
-                        bound_distance: Vec::new(),
+                        ..Default::default()
                     };
                     let mut s = c.search(tokio_stream::iter([batch])).await?.into_inner();
                     let r = s.message().await?;

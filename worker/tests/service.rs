@@ -13,7 +13,7 @@ use texsyn_engine::{
 };
 use texsyn_proto::auth::{read_token_file, BearerAuth};
 use texsyn_proto::v1 as pb;
-use texsyn_proto::wire::{best_hits, topk_hits};
+use texsyn_proto::wire::{best_hits, lowered_from_proto, topk_hits};
 use texsyn_proto::PROTOCOL_VERSION;
 use texsyn_worker::service::{self, WorkerConfig};
 use tokio::net::TcpListener;
@@ -190,8 +190,7 @@ fn batch(
         values: q.0.clone(),
         masks: q.1.clone(),
         epoch: 0,
-        bound_index: Vec::new(),
-        bound_distance: Vec::new(),
+        ..Default::default()
     }
 }
 
@@ -326,6 +325,63 @@ async fn cluster_of_one_two_three_workers_equals_local_engine() {
             w.shutdown().await;
         }
     }
+}
+
+/// A linked batch (ARCHITECTURE §4.7) answers as the same batch unlinked,
+/// with the master's update of the exact answers' distances arriving while
+/// it runs or after: interim reports name only the batch's queries, with
+/// distances no lower than the answers', and come before its answer.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_linked_batch_answers_as_an_unlinked_one() {
+    let level = Level::new(7, 40);
+    let count = 24;
+    let q = level.queries(5, count);
+    let w = Worker::start(config()).await;
+    let mut c = connect(w.addr, None).await;
+    let total = load(&mut c, &level, "job").await;
+    c.assign(assign("job", 0, 0, total)).await.unwrap();
+    let plain = search(&mut c, vec![batch("job", 0, 1, 1, count, &q)])
+        .await
+        .unwrap();
+    let want = best_hits(&plain[0], count).unwrap();
+    let update = pb::SearchBatch {
+        batch_id: 2,
+        update: true,
+        lower_query: (0..count as u32).collect(),
+        lower_distance: want.iter().map(|h| h.dist).collect(),
+        ..Default::default()
+    };
+    for told in [false, true] {
+        let mut msgs = vec![pb::SearchBatch {
+            linked: true,
+            ..batch("job", 0, 2, 1, count, &q)
+        }];
+        if told {
+            msgs.push(update.clone());
+        }
+        let mut stream = c
+            .search(tokio_stream::iter(msgs))
+            .await
+            .unwrap()
+            .into_inner();
+        let answer = loop {
+            let r = stream.message().await.unwrap().expect("an answer");
+            assert_eq!(r.batch_id, 2);
+            if !r.interim {
+                break r;
+            }
+            assert!(r.hits.is_empty());
+            let lowered = lowered_from_proto(&r.lower_query, &r.lower_distance, count).unwrap();
+            for (q, d) in lowered {
+                assert!(
+                    d >= want[q].dist,
+                    "query {q}: reported {d} below the answer"
+                );
+            }
+        };
+        assert_eq!(best_hits(&answer, count).unwrap(), want, "told {told}");
+    }
+    w.shutdown().await;
 }
 
 /// LBG on the cluster: each worker quantises its own range; with every
@@ -750,6 +806,31 @@ async fn malformed_searches(c: &mut Client, q: &(Vec<u8>, Vec<u8>)) {
         let desc = format!("{} {} {} {}", b.job_id, b.level, b.count, b.epoch);
         assert_eq!(code(search(c, vec![b]).await), want, "{desc}");
     }
+    // A malformed update (of a linked batch's bounds) ends the stream too.
+    let update = pb::SearchBatch {
+        batch_id: 3,
+        update: true,
+        lower_query: vec![0, 1],
+        lower_distance: vec![5],
+        ..Default::default()
+    };
+    let linked = pb::SearchBatch {
+        linked: true,
+        ..batch("job", 2, 3, 1, 4, q)
+    };
+    let mut stream = c
+        .search(tokio_stream::iter(vec![linked, update]))
+        .await
+        .unwrap()
+        .into_inner();
+    let code = loop {
+        match stream.message().await {
+            Ok(Some(r)) => assert_eq!(r.batch_id, 3),
+            Ok(None) => panic!("the malformed update was taken"),
+            Err(s) => break s.code(),
+        }
+    };
+    assert_eq!(code, Code::InvalidArgument);
     // A bad batch ends its stream; the answers before it still arrive.
     let mut stream = c
         .search(tokio_stream::iter(vec![

@@ -7,20 +7,24 @@
 
 use std::future::Future;
 use std::ops::Range;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use texsyn_engine::Hit;
 use texsyn_proto::auth::BearerAuth;
 use texsyn_proto::tls::{error_chain, parse_address, ClientTls};
 use texsyn_proto::v1 as pb;
-use texsyn_proto::wire::{best_hits, bounds_from_proto, prune_from_proto, topk_hits};
+use texsyn_proto::wire::{
+    best_hits, bounds_from_proto, lowered_from_proto, lowered_to_proto, prune_from_proto,
+    topk_hits, LINK_INTERVAL,
+};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::codegen::InterceptedService;
 use tonic::transport::Channel;
 use tonic::{Request, Status, Streaming};
 
-use texsyn_engine::{check_part, CalibrationSize, PruneStats};
+use texsyn_engine::{check_linked_part, check_part, CalibrationSize, Link, PruneStats};
 
 use super::error::{ClusterError, ClusterResult};
 
@@ -316,6 +320,9 @@ pub(crate) struct Part {
     pub chunks: Vec<pb::SearchBatch>,
     pub range: Range<u64>,
     pub deadline: Instant,
+    /// A linked batch's distances, per query of the whole batch, shared with
+    /// the other parts and the master's own share (ARCHITECTURE §4.7).
+    pub link: Option<Arc<Link>>,
 }
 
 /// What came back for one part.
@@ -339,8 +346,20 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
     let mut search_seconds = 0.0;
     let mut prune = PruneStats::default();
     let mut failure = None;
+    let mut first = 0;
     for chunk in part.chunks {
-        match ask_chunk(&mut stream, chunk, part.deadline, started, &part.range).await {
+        let link = part.link.as_deref().map(|l| (l, first));
+        first += chunk.count as usize;
+        match ask_chunk(
+            &mut stream,
+            chunk,
+            part.deadline,
+            started,
+            &part.range,
+            link,
+        )
+        .await
+        {
             Ok((h, seconds, p)) => {
                 hits.extend(h);
                 search_seconds += seconds;
@@ -373,30 +392,90 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
 
 /// Sends one chunk and reads its answer before `deadline`: the checked hits
 /// the search seconds the worker reported (0 when not a valid time) and its
-/// pruning figures.
+/// pruning figures. A linked chunk (`link`: the batch's link and the chunk's
+/// first query in it) passes the worker's interim finds into the link and,
+/// every [`LINK_INTERVAL`], the link's newer distances to the worker. A
+/// worker whose answer is worse than a distance it reported finding is
+/// refused: its reports could have starved the other ranges' searches.
 async fn ask_chunk(
     stream: &mut SearchStream,
-    chunk: pb::SearchBatch,
+    mut chunk: pb::SearchBatch,
     deadline: Instant,
     started: Instant,
     range: &Range<u64>,
+    link: Option<(&Link, usize)>,
 ) -> ClusterResult<(Vec<Hit>, f64, PruneStats)> {
     let missed = || ClusterError::Deadline(deadline.saturating_duration_since(started).as_millis());
     let at = tokio::time::Instant::from_std(deadline);
     let id = chunk.batch_id;
     let chunk_k = chunk.top_k;
+    let count = chunk.count as usize;
     let bounds =
         bounds_from_proto(&chunk).map_err(|e| ClusterError::BadAnswer(e.message().into()))?;
+    chunk.linked = link.is_some();
+    // What the worker knows per query (sent), and the least it reported.
+    let mut sent: Vec<u64> = bounds.iter().map(|h| h.dist).collect();
+    let mut reported = vec![u64::MAX; count];
     match tokio::time::timeout_at(at, stream.tx.send(chunk)).await {
         Ok(Ok(())) => {}
         Ok(Err(_)) => return Err(ClusterError::StreamClosed),
         Err(_) => return Err(missed()),
     }
-    let r = match tokio::time::timeout_at(at, stream.rx.message()).await {
-        Err(_) => return Err(missed()),
-        Ok(Err(s)) => return Err(ClusterError::Search(status_text(&s))),
-        Ok(Ok(None)) => return Err(ClusterError::StreamClosed),
-        Ok(Ok(Some(r))) => r,
+    let mut tick = tokio::time::interval(LINK_INTERVAL);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let r = loop {
+        let r = tokio::select! {
+            m = tokio::time::timeout_at(at, stream.rx.message()) => match m {
+                Err(_) => return Err(missed()),
+                Ok(Err(s)) => return Err(ClusterError::Search(status_text(&s))),
+                Ok(Ok(None)) => return Err(ClusterError::StreamClosed),
+                Ok(Ok(Some(r))) => r,
+            },
+            _ = tick.tick(), if link.is_some() => {
+                let (l, first) = link.expect("guarded");
+                let changes: Vec<(u32, u64)> = (0..count)
+                    .filter_map(|q| {
+                        let d = l.get(first + q);
+                        (d < sent[q]).then(|| {
+                            sent[q] = d;
+                            (q as u32, d)
+                        })
+                    })
+                    .collect();
+                if !changes.is_empty() {
+                    let (lower_query, lower_distance) = lowered_to_proto(&changes);
+                    let update = pb::SearchBatch {
+                        batch_id: id,
+                        update: true,
+                        lower_query,
+                        lower_distance,
+                        ..Default::default()
+                    };
+                    match tokio::time::timeout_at(at, stream.tx.send(update)).await {
+                        Ok(Ok(())) => {}
+                        Ok(Err(_)) => return Err(ClusterError::StreamClosed),
+                        Err(_) => return Err(missed()),
+                    }
+                }
+                continue;
+            }
+        };
+        if !r.interim {
+            break r;
+        }
+        let (Some((l, first)), true) = (link, r.batch_id == id) else {
+            return Err(ClusterError::BadAnswer(format!(
+                "an interim report for batch {} where none was asked",
+                r.batch_id
+            )));
+        };
+        let lowered = lowered_from_proto(&r.lower_query, &r.lower_distance, count)
+            .map_err(ClusterError::BadAnswer)?;
+        for (q, d) in lowered {
+            reported[q] = reported[q].min(d);
+            sent[q] = sent[q].min(d);
+            l.lower(first + q, d);
+        }
     };
     if r.batch_id != id {
         return Err(ClusterError::WrongBatch {
@@ -408,7 +487,18 @@ async fn ask_chunk(
     let h = if k == 1 {
         let h =
             best_hits(&r, bounds.len()).map_err(|e| ClusterError::BadAnswer(format!("{e:#}")))?;
-        check_part(&h, &bounds, range).map_err(ClusterError::BadAnswer)?;
+        if link.is_some() {
+            check_linked_part(&h, &bounds, range)
+        } else {
+            check_part(&h, &bounds, range)
+        }
+        .map_err(ClusterError::BadAnswer)?;
+        if let Some(q) = (0..count).find(|&q| h[q].dist > reported[q]) {
+            return Err(ClusterError::BadAnswer(format!(
+                "query {q}: reported finding distance {} while searching but answered {}",
+                reported[q], h[q].dist
+            )));
+        }
         h
     } else {
         let lists =

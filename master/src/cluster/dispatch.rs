@@ -11,10 +11,11 @@
 //! the master's machine or network than of all workers), the round is first
 //! asked once more with longer deadlines.
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use texsyn_engine::{Hit, QueryBatch};
+use texsyn_engine::{Hit, Link, QueryBatch};
 use texsyn_proto::v1 as pb;
 use tracing::Instrument;
 
@@ -165,6 +166,7 @@ impl ClusterSearch {
         expected: f64,
         stretch: f64,
         now: Instant,
+        link: Option<Arc<Link>>,
     ) -> conn::Part {
         let s = &self.slots[i];
         let (n, dims) = (out.batch.len(), out.batch.layout().dims());
@@ -196,6 +198,7 @@ impl ClusterSearch {
                     epoch: self.epoch,
                     bound_index,
                     bound_distance,
+                    ..Default::default()
                 }
             })
             .collect();
@@ -204,11 +207,18 @@ impl ClusterSearch {
             chunks,
             range: s.range.clone(),
             deadline,
+            link,
         }
     }
 
-    /// Searches the master's own share, if it has one.
-    fn search_master_share(&mut self, batch: &QueryBatch, k: usize) -> Result<Option<Vec<Hit>>> {
+    /// Searches the master's own share, if it has one (linked with the
+    /// workers' parts through `link`).
+    fn search_master_share(
+        &mut self,
+        batch: &QueryBatch,
+        k: usize,
+        link: Option<&Link>,
+    ) -> Result<Option<Vec<Hit>>> {
         let (Some(space), Some(level)) = (&self.master.space, &self.level) else {
             return Ok(None);
         };
@@ -217,7 +227,7 @@ impl ClusterSearch {
         let hits = if k == 1 {
             let (hits, prune) =
                 self.engine
-                    .search_best_counted(space, range, batch, &level.data.params)?;
+                    .search_best_linked(space, range, batch, &level.data.params, link)?;
             self.level_prune.add(&prune);
             hits
         } else {
@@ -249,6 +259,10 @@ impl ClusterSearch {
         rates.extend(self.master.rate);
         let floor_rate = policy::deadline_rate_floor(&rates);
 
+        // A best-1 batch split over several searchers is linked: each range
+        // prunes against the others' finds as they come (ARCHITECTURE §4.7).
+        let searchers = participants.len() + usize::from(self.master.space.is_some());
+        let link = (out.k == 1 && searchers > 1).then(|| Arc::new(Link::new(n)));
         // Send every worker its part; the tasks run while the master searches its own share.
         let now = Instant::now();
         let mut handles = Vec::with_capacity(participants.len());
@@ -257,7 +271,7 @@ impl ClusterSearch {
             let s = &self.slots[i];
             let exp = policy::expected_seconds(s.len(), n, cost, s.rate.max(floor_rate));
             let span = tracing::debug_span!("worker", address = %s.spec.address, batch = out.id);
-            let part = self.part_for(i, out, exp, stretch, now);
+            let part = self.part_for(i, out, exp, stretch, now, link.clone());
             let stream = self.slots[i].stream.take().expect("opened above");
             handles.push(
                 self.rt()
@@ -266,7 +280,7 @@ impl ClusterSearch {
             expected.push(exp);
         }
         let mut parts: Vec<Vec<Hit>> = Vec::new();
-        parts.extend(self.search_master_share(out.batch, out.k)?);
+        parts.extend(self.search_master_share(out.batch, out.k, link.as_deref())?);
         let answers = block_on(self.rt(), async move {
             let mut out = Vec::with_capacity(handles.len());
             for h in handles {

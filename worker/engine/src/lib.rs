@@ -15,6 +15,7 @@ pub mod kernel;
 pub mod layout;
 pub mod lbg;
 pub mod level;
+pub mod link;
 pub mod merge;
 pub mod plane;
 pub mod positions;
@@ -29,7 +30,10 @@ pub use kernel::{distance, Kernel, Params, PruneStats};
 pub use layout::{Geometry, Layout, Metric, Weights};
 pub use lbg::{Codebook, LbgConfig, LbgStats};
 pub use level::{OwnedLevel, Scorer};
-pub use merge::{check_part, merge_answers, merge_best, merge_topk, with_bounds, Hit, Slack};
+pub use link::Link;
+pub use merge::{
+    check_linked_part, check_part, merge_answers, merge_best, merge_topk, with_bounds, Hit, Slack,
+};
 pub use plane::{OwnedPlane, Plane, Sample};
 pub use positions::Positions;
 pub use search::{busy_nanos, Engine};

@@ -113,6 +113,17 @@ pub fn with_bounds(bounds: &[Hit], found: &[Hit]) -> Vec<Hit> {
 /// unbounded query over a non-empty range always has an answer). An answer
 /// that fails is never merged (the worker is dropped and the batch asked again).
 pub fn check_part(hits: &[Hit], bounds: &[Hit], range: &Range<u64>) -> Result<(), String> {
+    check(hits, bounds, range, false)
+}
+
+/// [`check_part`] for a linked part (ARCHITECTURE §4.7): it may answer
+/// [`Hit::NONE`] for an unbounded query too, when another range reported a
+/// distance its own vectors cannot beat.
+pub fn check_linked_part(hits: &[Hit], bounds: &[Hit], range: &Range<u64>) -> Result<(), String> {
+    check(hits, bounds, range, true)
+}
+
+fn check(hits: &[Hit], bounds: &[Hit], range: &Range<u64>, linked: bool) -> Result<(), String> {
     let queries = bounds.len();
     if hits.len() != queries {
         return Err(format!(
@@ -122,7 +133,7 @@ pub fn check_part(hits: &[Hit], bounds: &[Hit], range: &Range<u64>) -> Result<()
     }
     for (h, b) in hits.iter().zip(bounds) {
         if h.is_none() {
-            if b.is_none() && !range.is_empty() {
+            if b.is_none() && !range.is_empty() && !linked {
                 return Err(format!(
                     "answered nothing for a query over its range {}..{}",
                     range.start, range.end

@@ -23,6 +23,7 @@ use crate::batch::QueryBatch;
 use crate::error::{EngineError, Result};
 use crate::kdtree::KdTree;
 use crate::kernel::{distance, Kernel, Params, PruneStats, Scan, Sink};
+use crate::link::Link;
 use crate::merge::{merge_best, merge_topk, Hit, Slack};
 use crate::space::VectorSpace;
 use crate::window::Sweep;
@@ -300,7 +301,31 @@ impl Engine {
         queries: &QueryBatch,
         params: &Params,
     ) -> Result<(Vec<Hit>, PruneStats)> {
+        self.search_best_linked(space, range, queries, params, None)
+    }
+
+    /// [`Engine::search_best_counted`] as one range of a batch whose other
+    /// ranges are searched at the same time elsewhere: the keyed sweep prunes
+    /// against the least distance `link` holds and lowers it with its own
+    /// finds ([`Link`]). The answers are those of the search without it.
+    pub fn search_best_linked(
+        &self,
+        space: &VectorSpace,
+        range: Range<u64>,
+        queries: &QueryBatch,
+        params: &Params,
+        link: Option<&Link>,
+    ) -> Result<(Vec<Hit>, PruneStats)> {
         self.check(space, &range, queries)?;
+        if let Some(l) = link {
+            if l.len() != queries.len() {
+                return Err(EngineError::Geometry(format!(
+                    "a link of {} queries for a batch of {}; make one per batch",
+                    l.len(),
+                    queries.len()
+                )));
+            }
+        }
         let start = self.start_from_candidates(space, &range, queries, params);
         let layout = space.layout();
         let (windowed, scanned): (Vec<usize>, Vec<usize>) =
@@ -323,7 +348,8 @@ impl Engine {
                 .map(|&q| (queries.values(q), queries.mask(q)))
                 .collect();
             let from: Vec<Hit> = windowed.iter().map(|&q| start[q]).collect();
-            Some(space.search_keyed(&sweep, &qs, &from))
+            let link = link.map(|l| (l, windowed.as_slice()));
+            Some(space.search_keyed(&sweep, &qs, &from, link))
         };
         let scan = || -> Option<(Vec<Hit>, PruneStats)> {
             if scanned.is_empty() {

@@ -1,12 +1,13 @@
 //! The pruned search equals exhaustive search (ARCHITECTURE §3.5): with and
 //! without bounds and coherence candidates, on random vectors and on a real
 //! texture level, L1 and L2 with masks, every kernel, 1, 2 and 4 threads and
-//! any split of the index range into parts searched apart (as workers do).
+//! any split of the index range into parts searched apart (as workers do),
+//! alone or linked.
 
 use proptest::prelude::*;
 use texsyn_engine::{
-    check_part, distance, merge_answers, with_bounds, Engine, Geometry, Hit, Kernel, Layout,
-    Metric, Params, Plane, QueryBatch, Sample, VectorSpace, Weights,
+    check_linked_part, check_part, distance, merge_answers, with_bounds, Engine, Geometry, Hit,
+    Kernel, Layout, Link, Metric, Params, Plane, QueryBatch, Sample, VectorSpace, Weights,
 };
 
 /// Exhaustive answers by the scalar reference, one distance at a time.
@@ -81,6 +82,53 @@ fn search_in_parts(
     with_bounds(batch.bounds(), &merge_answers(batch.len(), &refs))
 }
 
+/// As [`search_in_parts`], the parts searched at the same time and linked
+/// (ARCHITECTURE §4.7); with `told`, the link starts at the exact answers'
+/// distances, as if another searcher had reported them before this one began.
+fn search_linked(
+    engine: &Engine,
+    space: &VectorSpace,
+    batch: &QueryBatch,
+    params: &Params,
+    cuts: &[u64],
+    told: Option<&[Hit]>,
+) -> Vec<Hit> {
+    let n = space.len() as u64;
+    let mut edges: Vec<u64> = cuts.iter().map(|c| c % n).filter(|&c| c > 0).collect();
+    edges.extend([0, n]);
+    edges.sort_unstable();
+    edges.dedup();
+    let link = Link::new(batch.len());
+    for (q, h) in told.unwrap_or_default().iter().enumerate() {
+        link.lower(q, h.dist);
+    }
+    let parts: Vec<Vec<Hit>> = std::thread::scope(|s| {
+        let tasks: Vec<_> = edges
+            .windows(2)
+            .map(|w| {
+                let link = &link;
+                s.spawn(move || {
+                    let (part, _) = engine
+                        .search_best_linked(space, w[0]..w[1], batch, params, Some(link))
+                        .unwrap();
+                    check_linked_part(&part, batch.bounds(), &(w[0]..w[1])).unwrap();
+                    part
+                })
+            })
+            .collect();
+        tasks.into_iter().map(|t| t.join().unwrap()).collect()
+    });
+    let refs: Vec<&[Hit]> = parts.iter().map(Vec::as_slice).collect();
+    let merged = with_bounds(batch.bounds(), &merge_answers(batch.len(), &refs));
+    for (q, h) in merged.iter().enumerate() {
+        assert!(
+            link.get(q) >= h.dist,
+            "the link never holds less than the answer"
+        );
+    }
+    merged
+}
+
 fn params_of(l2: bool, whi: u32, wlo: u32) -> Params {
     Params {
         metric: if l2 { Metric::L2 } else { Metric::L1 },
@@ -140,6 +188,10 @@ proptest! {
                     assert_eq!(plain, expect, "{} unbounded, {threads} threads", k.name());
                     let got = search_in_parts(&e, &space, &hinted, &params, &cuts);
                     assert_eq!(got, expect, "{} with bounds and candidates, {threads} threads, cuts {cuts:?}", k.name());
+                    let linked = search_linked(&e, &space, &hinted, &params, &cuts, None);
+                    assert_eq!(linked, expect, "{} linked parts, {threads} threads, cuts {cuts:?}", k.name());
+                    let told = search_linked(&e, &space, &batch, &params, &cuts, Some(&expect));
+                    assert_eq!(told, expect, "{} parts told the answers' distances, {threads} threads, cuts {cuts:?}", k.name());
                 });
             }
         }
@@ -208,6 +260,17 @@ fn pruned_search_equals_brute_force_on_a_real_level() {
                 let got = pool(threads)
                     .install(|| search_in_parts(&e, &space, &batch, &params, &[n / 3, n / 2]));
                 assert_eq!(got, expect, "{} {} threads l2={l2}", k.name(), threads);
+                for told in [None, Some(expect.as_slice())] {
+                    let linked = pool(threads).install(|| {
+                        search_linked(&e, &space, &batch, &params, &[n / 3, n / 2], told)
+                    });
+                    assert_eq!(
+                        linked,
+                        expect,
+                        "{} {threads} threads l2={l2} linked",
+                        k.name()
+                    );
+                }
             }
         }
         // Pruning did its job on real data: most pairs were abandoned early.

@@ -1,6 +1,8 @@
 //! The `texsyn.v1.Worker` RPCs.
 
+use std::future::Future;
 use std::ops::Range;
+use std::pin::Pin;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Instant;
@@ -9,13 +11,14 @@ use texsyn_engine::calibrate::{calibrate, CalibrationSize};
 use texsyn_engine::layout::SLACK;
 use texsyn_engine::lbg::{check_probes, default_seeds, range_seed};
 use texsyn_engine::{
-    Codebook, Engine, Hit, LbgConfig, OwnedLevel, PruneStats, QueryBatch, Storage, VectorSpace,
+    Codebook, Engine, Hit, LbgConfig, Link, OwnedLevel, PruneStats, QueryBatch, Storage,
+    VectorSpace,
 };
 use texsyn_proto::v1 as proto;
 use texsyn_proto::v1::worker_server::Worker;
 use texsyn_proto::wire::{
-    bounds_from_proto, check_job_id, engine_status, invalid, prune_to_proto, LevelAssembly,
-    MAX_QUERIES, MAX_TOP_K,
+    bounds_from_proto, check_job_id, engine_status, invalid, lowered_from_proto, lowered_to_proto,
+    prune_to_proto, LevelAssembly, LINK_INTERVAL, MAX_QUERIES, MAX_TOP_K,
 };
 use texsyn_proto::PROTOCOL_VERSION;
 use tokio_stream::wrappers::ReceiverStream;
@@ -273,37 +276,10 @@ impl Worker for WorkerService {
         &self,
         request: Request<Streaming<proto::SearchBatch>>,
     ) -> Result<Response<Self::SearchStream>, Status> {
-        let mut inbound = request.into_inner();
+        let inbound = request.into_inner();
         let (tx, rx) = tokio::sync::mpsc::channel(4);
         let shared = self.shared.clone();
-        let mut stop = shared.stop.clone();
-        tokio::spawn(async move {
-            loop {
-                let next = tokio::select! {
-                    m = inbound.message() => Some(m),
-                    () = async { let _ = stop.wait_for(|s| *s).await; } => None,
-                    () = tx.closed() => break,
-                };
-                let Some(next) = next else {
-                    let _ = tx
-                        .send(Err(Status::unavailable("the worker is shutting down")))
-                        .await;
-                    break;
-                };
-                let reply = match next {
-                    Ok(Some(batch)) => search_batch(&shared, batch).await,
-                    Ok(None) => break,
-                    Err(status) => Err(super::size_status(status)),
-                };
-                let failed = reply.is_err();
-                if let Err(e) = &reply {
-                    tracing::debug!(code = ?e.code(), message = e.message(), "search batch rejected");
-                }
-                if tx.send(reply).await.is_err() || failed {
-                    break;
-                }
-            }
-        });
+        tokio::spawn(serve_stream(shared, inbound, tx));
         Ok(Response::new(ReceiverStream::new(rx)))
     }
 
@@ -319,11 +295,153 @@ impl Worker for WorkerService {
     }
 }
 
-/// Validates one batch and searches it over the job's assigned range.
+/// A batch being searched on a stream: its id, its link to the other ranges
+/// (linked batches), the distances the master already knows of, and the
+/// search.
+struct InFlight {
+    id: u64,
+    link: Option<(Arc<Link>, Vec<u64>)>,
+    task: Pin<Box<dyn Future<Output = Result<proto::SearchResult, Status>> + Send>>,
+}
+
+impl InFlight {
+    fn start(shared: &Arc<Shared>, b: proto::SearchBatch) -> Self {
+        let link = (b.linked && b.count as usize <= MAX_QUERIES).then(|| {
+            let count = b.count as usize;
+            // What the master sent as bounds it knows already: not echoed.
+            let mut sent = vec![u64::MAX; count];
+            if b.bound_distance.len() == count {
+                sent.copy_from_slice(&b.bound_distance);
+            }
+            (Arc::new(Link::new(count)), sent)
+        });
+        Self {
+            id: b.batch_id,
+            task: Box::pin(search_batch(
+                shared.clone(),
+                b,
+                link.as_ref().map(|l| l.0.clone()),
+            )),
+            link,
+        }
+    }
+
+    /// The distances its search lowered since the last report, as an
+    /// interim result (None when there are none).
+    fn report(&mut self) -> Option<proto::SearchResult> {
+        let (link, sent) = self.link.as_mut()?;
+        let changes = link.changes(sent);
+        if changes.is_empty() {
+            return None;
+        }
+        let (lower_query, lower_distance) = lowered_to_proto(&changes);
+        Some(proto::SearchResult {
+            batch_id: self.id,
+            interim: true,
+            lower_query,
+            lower_distance,
+            ..Default::default()
+        })
+    }
+
+    /// Takes in the master's `update` for this batch: the other ranges' finds.
+    fn update(&mut self, u: &proto::SearchBatch) -> Result<(), Status> {
+        let Some((link, sent)) = self.link.as_mut() else {
+            return Ok(());
+        };
+        let lowered =
+            lowered_from_proto(&u.lower_query, &u.lower_distance, sent.len()).map_err(invalid)?;
+        for (q, d) in lowered {
+            link.lower(q, d);
+            sent[q] = sent[q].min(d);
+        }
+        Ok(())
+    }
+}
+
+/// One `Search` stream: batches are searched one at a time, in order; while
+/// a linked batch runs, its finds go out every [`LINK_INTERVAL`] and the
+/// master's updates come in (ARCHITECTURE §4.7).
+async fn serve_stream(
+    shared: Arc<Shared>,
+    mut inbound: Streaming<proto::SearchBatch>,
+    tx: tokio::sync::mpsc::Sender<Result<proto::SearchResult, Status>>,
+) {
+    let mut stop = shared.stop.clone();
+    let mut running: Option<InFlight> = None;
+    let mut queued: Option<proto::SearchBatch> = None;
+    // The master closed its side: what is in flight is still answered.
+    let mut closed = false;
+    let mut tick = tokio::time::interval(LINK_INTERVAL);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        if running.is_none() {
+            if let Some(b) = queued.take() {
+                running = Some(InFlight::start(&shared, b));
+            }
+        }
+        if closed && running.is_none() {
+            break;
+        }
+        let linked = running.as_ref().is_some_and(|r| r.link.is_some());
+        let reply = tokio::select! {
+            m = inbound.message(), if queued.is_none() && !closed => match m {
+                Ok(Some(b)) if b.update => {
+                    if b.lower_query.len() != b.lower_distance.len() {
+                        Some(Err(invalid(format!(
+                            "an update with {} lower_query and {} lower_distance entries; send one distance per query",
+                            b.lower_query.len(),
+                            b.lower_distance.len()
+                        ))))
+                    } else {
+                        match running.as_mut().filter(|r| r.id == b.batch_id) {
+                            Some(r) => r.update(&b).err().map(Err),
+                            None => None,
+                        }
+                    }
+                }
+                Ok(Some(b)) => {
+                    queued = Some(b);
+                    None
+                }
+                Ok(None) => {
+                    closed = true;
+                    None
+                }
+                Err(status) => Some(Err(super::size_status(status))),
+            },
+            done = async { running.as_mut().expect("guarded").task.as_mut().await }, if running.is_some() => {
+                running = None;
+                Some(done)
+            }
+            _ = tick.tick(), if linked => running.as_mut().and_then(InFlight::report).map(Ok),
+            () = async { let _ = stop.wait_for(|s| *s).await; } => {
+                let _ = tx
+                    .send(Err(Status::unavailable("the worker is shutting down")))
+                    .await;
+                break;
+            }
+            () = tx.closed() => break,
+        };
+        let Some(reply) = reply else { continue };
+        let failed = reply.is_err();
+        if let Err(e) = &reply {
+            tracing::debug!(code = ?e.code(), message = e.message(), "search batch rejected");
+        }
+        if tx.send(reply).await.is_err() || failed {
+            break;
+        }
+    }
+}
+
+/// Validates one batch and searches it over the job's assigned range; a
+/// linked batch's keyed sweep shares its bounds through `link`.
 async fn search_batch(
-    shared: &Arc<Shared>,
+    shared: Arc<Shared>,
     b: proto::SearchBatch,
+    link: Option<Arc<Link>>,
 ) -> Result<proto::SearchResult, Status> {
+    let shared = &shared;
     check_job_id(&b.job_id)?;
     let k = match b.top_k as usize {
         0 | 1 => 1,
@@ -408,7 +526,8 @@ async fn search_batch(
                         Vec::new()
                     }
                 } else if k == 1 {
-                    let (hits, stats) = engine.search_best_counted(space, range, &q, params)?;
+                    let (hits, stats) =
+                        engine.search_best_linked(space, range, &q, params, link.as_deref())?;
                     prune = Some(stats);
                     hits
                 } else {
@@ -438,6 +557,7 @@ async fn search_batch(
         per_query: per_query as u32,
         seconds,
         prune: prune.as_ref().map(prune_to_proto),
+        ..Default::default()
     })
 }
 

@@ -262,6 +262,7 @@ impl VectorSpace {
 
     /// The windowed search of `queries` over `sw.range` from `start`
     /// (ARCHITECTURE §3.5). Every query must pass [`VectorSpace::keyed`].
+    /// A `link` is honoured by dense spaces; plane-backed ones search alone.
     ///
     /// # Panics
     /// If the space has no keys.
@@ -270,6 +271,7 @@ impl VectorSpace {
         sw: &Sweep,
         queries: &[(&[u8], &[u8])],
         start: &[Hit],
+        link: Option<(&crate::link::Link, &[usize])>,
     ) -> (Vec<Hit>, PruneStats) {
         match &self.data {
             Data::Dense(d) => {
@@ -278,7 +280,7 @@ impl VectorSpace {
                     base: self.start,
                 };
                 let index = self.key_index().expect("a windowed search needs keys");
-                index.search(sw, &dense, queries, start)
+                index.search(sw, &dense, queries, start, link)
             }
             Data::Planes(src) => {
                 let view = PlaneView {

@@ -9,6 +9,7 @@ use super::parts::{balanced_parts, Bounds};
 use super::{merged, reach, Dense, Sweep};
 use crate::kernel::{head_bytes, prefetch, Params, PruneStats};
 use crate::layout::{Layout, LANE};
+use crate::link::Link;
 use crate::merge::Hit;
 use crate::space::AlignedBytes;
 
@@ -173,17 +174,23 @@ impl KeyIndex {
     /// The best (distance, index) of each query `(values, mask)` over the
     /// global indices `sw.range`, starting from `start`: the start itself when
     /// nothing in the range beats it. Every query must pass [`KeyIndex::applies`].
+    /// With a `link` (the batch's [`Link`] and each query's place in the
+    /// batch), the sweep prunes against the other ranges' finds too and
+    /// reports its own.
     pub(crate) fn search(
         &self,
         sw: &Sweep,
         dense: &Dense,
         queries: &[(&[u8], &[u8])],
         start: &[Hit],
+        link: Option<(&Link, &[usize])>,
     ) -> (Vec<Hit>, PruneStats) {
+        let linked = |i: usize| link.map_or(u64::MAX, |(l, at)| l.get(at[i]));
         let seeded: Vec<(Probe, usize, PruneStats)> = queries
             .par_iter()
             .zip(start.par_iter())
-            .map(|(&(q, m), &best)| {
+            .enumerate()
+            .map(|(i, (&(q, m), &best))| {
                 let key = key_of(&sw.layout, q);
                 let mut probe = Probe {
                     q,
@@ -193,7 +200,8 @@ impl KeyIndex {
                     window: 0..0,
                 };
                 let (centre, stats) = self.seed(sw, dense, &mut probe);
-                probe.window = self.window(key, Self::reach(sw, probe.best.dist));
+                let bound = probe.best.dist.min(linked(i));
+                probe.window = self.window(key, Self::reach(sw, bound));
                 (probe, centre, stats)
             })
             .collect();
@@ -210,7 +218,7 @@ impl KeyIndex {
         let threads = rayon::current_num_threads().max(1);
         let cut = balanced_parts(&windows, threads * PARTS_PER_THREAD, sw.min_part.max(1));
         let cut = nearest_first(cut, &centres);
-        let shared = Bounds::new(&seeds);
+        let shared = Bounds::new(&seeds, link);
         let mut parts = pull_in_order(threads, &cut, |part| {
             self.sweep(sw, dense, probes.clone(), part.clone(), &shared)
         });

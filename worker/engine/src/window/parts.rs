@@ -5,6 +5,7 @@ use std::ops::Range;
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use crate::link::Link;
 use crate::merge::Hit;
 
 /// Per query the least distance any part of a sweep has found so far,
@@ -13,19 +14,38 @@ use crate::merge::Hit;
 /// strictly above a distance already found are skipped, and the parts'
 /// answers are merged by (distance, index), so the answers are the same
 /// whatever the order in which the parts run; only the pruning figures vary.
-pub(super) struct Bounds(Vec<AtomicU64>);
+pub(super) struct Bounds<'a> {
+    own: Vec<AtomicU64>,
+    /// The batch's [`Link`] to its other ranges and, per query here, its
+    /// place in the batch.
+    link: Option<(&'a Link, &'a [usize])>,
+}
 
-impl Bounds {
-    pub(super) fn new(start: &[Hit]) -> Self {
-        Self(start.iter().map(|h| AtomicU64::new(h.dist)).collect())
+impl<'a> Bounds<'a> {
+    pub(super) fn new(start: &[Hit], link: Option<(&'a Link, &'a [usize])>) -> Self {
+        let own = start.iter().map(|h| AtomicU64::new(h.dist)).collect();
+        let b = Self { own, link };
+        for (i, h) in start.iter().enumerate() {
+            b.lower(i, h.dist);
+        }
+        b
     }
 
     pub(super) fn get(&self, i: usize) -> u64 {
-        self.0[i].load(Ordering::Relaxed)
+        let own = self.own[i].load(Ordering::Relaxed);
+        match self.link {
+            Some((link, at)) => own.min(link.get(at[i])),
+            None => own,
+        }
     }
 
     pub(super) fn lower(&self, i: usize, d: u64) {
-        self.0[i].fetch_min(d, Ordering::Relaxed);
+        self.own[i].fetch_min(d, Ordering::Relaxed);
+        if let Some((link, at)) = self.link {
+            if d < u64::MAX {
+                link.lower(at[i], d);
+            }
+        }
     }
 }
 
