@@ -649,7 +649,7 @@ fn omega_tiles_on_the_command_line() {
     // Assembled by the scan-line tiler; an index whose neighbours disagree on
     // a corner is refused.
     let grid = dir.path().join("grid.png");
-    ok(&[
+    let assemble = [
         "tiles",
         "assemble",
         s(&one),
@@ -659,8 +659,12 @@ fn omega_tiles_on_the_command_line() {
         "2",
         "-o",
         s(&grid),
-    ]);
+    ];
+    let said = String::from_utf8(ok(&assemble).stdout).unwrap();
+    assert!(said.contains("5x4 tiles of 64x64 (320x256)"), "{said}");
     assert_eq!(image::image_dimensions(&grid).unwrap(), (5 * 64, 4 * 64));
+    let quiet = ok(&[&assemble[..], &["-q"]].concat());
+    assert!(quiet.stdout.is_empty(), "-q prints nothing");
     let names: Vec<&str> = set["set"]
         .as_array()
         .unwrap()

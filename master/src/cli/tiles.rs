@@ -127,6 +127,9 @@ pub struct AssembleArgs {
     pub seed: u64,
     #[arg(short, long)]
     pub output: PathBuf,
+    /// No summary line.
+    #[arg(long, short)]
+    pub quiet: bool,
 }
 
 /// Every count is checked, whichever method uses it, so a bad flag is
@@ -284,5 +287,16 @@ fn assemble(a: &AssembleArgs) -> Result<()> {
     let (cols, rows) = (index[0].len(), index.len());
     imaging::check_output_size(&a.output, cols * tile.0, rows * tile.1)?;
     let img = tiles::assemble(&set, &index)?;
-    imaging::save_color(&a.output, &img)
+    imaging::save_color(&a.output, &img)?;
+    if !a.quiet {
+        println!(
+            "wrote {}: {cols}x{rows} tiles of {}x{} ({}x{})",
+            a.output.display(),
+            tile.0,
+            tile.1,
+            img.width,
+            img.height
+        );
+    }
+    Ok(())
 }
