@@ -408,49 +408,68 @@ fn worker_stopped_mid_level_is_dropped_by_deadline_and_taken_back_later() {
     assert_eq!(last["shares"].as_array().unwrap().len(), 2, "{last:#}");
 }
 
-#[test]
-fn lying_worker_is_caught_dropped_and_never_taken_back() {
-    // Worker b answers every query with another reference at distance 0,
-    // which would win every merge; the master scores each answer itself.
+/// A run on an honest worker (host `hosts.0`) and one started with the
+/// fault flag `fault` (host `hosts.1`), 1 thread each: its output, checked
+/// against the local engine's, the faulty worker's address and the one drop
+/// event it must have.
+fn run_beside_a_faulty_worker(hosts: (u8, u8), fault: &str) -> (Output, String, Value) {
     let token = Token::new();
-    let a = Worker::with_token(13, &token, 1);
+    let a = Worker::with_token(hosts.0, &token, 1);
     let path = token.path.to_str().unwrap().to_string();
-    let b = Worker::start(
-        14,
-        &[
-            "--threads",
-            "1",
-            "--token-file",
-            &path,
-            "--fault-wrong-answers",
-        ],
-    );
+    let b = Worker::start(hosts.1, &["--threads", "1", "--token-file", &path, fault]);
     let out = run(Box::new(connect(options(vec![
         a.spec(Some(&token)),
         b.spec(Some(&token)),
     ]))))
     .unwrap();
-    assert_same_as_local(&out, "lying worker");
-    let stats = cluster_stats(&out);
+    assert_same_as_local(&out, fault);
     let baddr = b.address.to_string();
-    let drops: Vec<_> = events(stats, "drop")
+    let stats = cluster_stats(&out);
+    let drops: Vec<Value> = events(stats, "drop")
         .into_iter()
         .filter(|e| e["worker"] == baddr.as_str())
+        .cloned()
         .collect();
     assert_eq!(drops.len(), 1, "dropped once, never taken back: {stats:#}");
-    let reason = drops[0]["reason"].as_str().unwrap();
+    assert_eq!(worker_stats(stats, &baddr)["state"], "dropped");
+    assert_eq!(
+        worker_stats(stats, &a.address.to_string())["state"],
+        "active"
+    );
+    let drop = drops[0].clone();
+    (out, baddr, drop)
+}
+
+#[test]
+fn lying_worker_is_caught_dropped_and_never_taken_back() {
+    // Worker b answers every query with another reference at distance 0,
+    // which would win every merge; the master scores each answer itself.
+    let (out, baddr, drop) = run_beside_a_faulty_worker((13, 14), "--fault-wrong-answers");
+    let reason = drop["reason"].as_str().unwrap();
     assert!(
         reason.contains("distance 0") && reason.contains("not trusted again"),
         "{reason}"
     );
-    assert_eq!(drops[0]["level"], LEVELS - 1, "caught at its first batch");
+    assert_eq!(drop["level"], LEVELS - 1, "caught at its first batch");
+    let stats = cluster_stats(&out);
     assert!(
         !events(stats, "rejoin")
             .iter()
             .any(|e| e["worker"] == baddr.as_str()),
         "a lying worker is not taken back: {stats:#}"
     );
-    assert_eq!(worker_stats(stats, &baddr)["state"], "dropped");
+}
+
+#[test]
+fn a_worker_reporting_distances_it_cannot_answer_is_dropped() {
+    // Worker b, while it searches a linked batch (ARCHITECTURE §4.7), reports
+    // distance 0 for every query, which starves worker a's pruning, and then
+    // answers truthfully. Its answer is worse than what it reported, so the
+    // master refuses it, drops it and asks the batch again of a alone.
+    let (_, _, drop) = run_beside_a_faulty_worker((41, 42), "--fault-low-reports");
+    let reason = drop["reason"].as_str().unwrap();
+    assert!(reason.contains("reported finding distance 0"), "{reason}");
+    assert_eq!(drop["level"], LEVELS - 1, "caught at its first batch");
 }
 
 #[test]

@@ -121,6 +121,10 @@ pub struct ServeArgs {
     /// process receives SIGUSR1, wrongly from then on.
     #[arg(long, hide = true, conflicts_with = "fault_wrong_answers")]
     pub fault_wrong_answers_on_sigusr1: bool,
+    /// Fault injection for tests: while searching a linked batch, report
+    /// distance 0 for every query; answer truthfully.
+    #[arg(long, hide = true)]
+    pub fault_low_reports: bool,
     /// Read the shared token from the first line of stdin (never from the command line).
     #[arg(long, conflicts_with = "token_file")]
     pub token_stdin: bool,
@@ -207,6 +211,7 @@ impl TryFrom<ServeArgs> for WorkerConfig {
             } else {
                 WrongAnswers::Never
             },
+            low_reports: a.fault_low_reports,
             connections: crate::service::ConnectionLimits {
                 max_connections: a.max_connections,
                 ..Default::default()

@@ -110,6 +110,10 @@ pub struct WorkerConfig {
     /// Fault injection for tests and the fault campaign: when searches are
     /// answered with made-up references.
     pub wrong_answers: WrongAnswers,
+    /// Fault injection for tests: report distance 0 for every query of a
+    /// linked batch while searching it, and then answer truthfully (the
+    /// master must refuse the answer and drop this worker).
+    pub low_reports: bool,
 }
 
 impl Default for WorkerConfig {
@@ -127,6 +131,7 @@ impl Default for WorkerConfig {
             storage: Storage::Auto,
             connections: ConnectionLimits::default(),
             wrong_answers: WrongAnswers::Never,
+            low_reports: false,
         }
     }
 }
@@ -146,6 +151,7 @@ impl std::fmt::Debug for WorkerConfig {
             .field("storage", &self.storage)
             .field("connections", &self.connections)
             .field("wrong_answers", &self.wrong_answers)
+            .field("low_reports", &self.low_reports)
             .finish()
     }
 }

@@ -83,6 +83,8 @@ pub(crate) struct Shared {
     /// Fault injection: answers are made up while this is true (see
     /// [`WorkerConfig::wrong_answers`]).
     pub wrong_answers: std::sync::atomic::AtomicBool,
+    /// Fault injection: see [`WorkerConfig::low_reports`].
+    pub low_reports: bool,
     /// Turns true when the server shuts down; search streams end on it.
     pub stop: tokio::sync::watch::Receiver<bool>,
     jobs: Mutex<HashMap<String, Job>>,
@@ -108,6 +110,7 @@ impl Shared {
             storage: config.storage,
             max_message: config.max_message,
             wrong_answers: (config.wrong_answers == WrongAnswers::Always).into(),
+            low_reports: config.low_reports,
             stop,
             jobs: Mutex::new(HashMap::new()),
             calibrated: AtomicU64::new(0f64.to_bits()),
