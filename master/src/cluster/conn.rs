@@ -433,15 +433,7 @@ async fn ask_chunk(
             },
             _ = tick.tick(), if link.is_some() => {
                 let (l, first) = link.expect("guarded");
-                let changes: Vec<(u32, u64)> = (0..count)
-                    .filter_map(|q| {
-                        let d = l.get(first + q);
-                        (d < sent[q]).then(|| {
-                            sent[q] = d;
-                            (q as u32, d)
-                        })
-                    })
-                    .collect();
+                let changes = l.changes_from(first, &mut sent);
                 if !changes.is_empty() {
                     let (lower_query, lower_distance) = lowered_to_proto(&changes);
                     let update = pb::SearchBatch {

@@ -45,9 +45,15 @@ impl Link {
     /// The queries whose distance is below `sent`'s, with the distances; `sent`
     /// is brought up to date (what a carrier forwards since its last look).
     pub fn changes(&self, sent: &mut [u64]) -> Vec<(u32, u64)> {
+        self.changes_from(0, sent)
+    }
+
+    /// [`Link::changes`] of queries `first..first + sent.len()`, numbered
+    /// from `first` (a chunk of the batch).
+    pub fn changes_from(&self, first: usize, sent: &mut [u64]) -> Vec<(u32, u64)> {
         let mut out = Vec::new();
         for (q, s) in sent.iter_mut().enumerate() {
-            let d = self.get(q);
+            let d = self.get(first + q);
             if d < *s {
                 *s = d;
                 out.push((q as u32, d));
@@ -73,5 +79,9 @@ mod tests {
         assert!(link.changes(&mut sent).is_empty());
         assert!(link.lower(1, 39));
         assert_eq!(link.changes(&mut sent), [(1, 39)]);
+        // A chunk of the batch: queries 1..3 numbered from 0.
+        let mut chunk = vec![u64::MAX, 7];
+        assert_eq!(link.changes_from(1, &mut chunk), [(0, 39)]);
+        assert_eq!(chunk, [39, 7]);
     }
 }
