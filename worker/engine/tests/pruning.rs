@@ -200,7 +200,8 @@ proptest! {
 
 /// A real texture level: vectors of a photo's luminance with its parent level,
 /// queries cut from other places of it with the masks growth synthesis makes
-/// (a block-sized hole, a side not yet grown) and bounds from nearby positions.
+/// (a block-sized hole, a side not yet grown, a parent window the canvas
+/// border cuts) and bounds from nearby positions.
 #[test]
 fn pruned_search_equals_brute_force_on_a_real_level() {
     let path = concat!(
@@ -240,7 +241,10 @@ fn pruned_search_equals_brute_force_on_a_real_level() {
                     let (x, y) = (i % 11, i / 11);
                     let hole = i < 121 && (3..8).contains(&x) && (3..8).contains(&y);
                     let side = i < 121 && q % 3 == 1 && x > 5;
-                    u8::from(!(hole || side))
+                    // A parent window the canvas border cuts: its right
+                    // columns unknown, the rest a rectangle.
+                    let border = i >= 121 && q % 4 == 3 && (i - 121) % 7 >= 5;
+                    u8::from(!(hole || side || border))
                 })
                 .collect();
             // Perturb the values so the exact vector is not in the space.

@@ -81,12 +81,13 @@ impl VectorSpace {
             Storage::Auto => storage.resolve(dense_bytes, crate::budget::available_bytes()),
             s => s,
         };
-        let data = match storage {
-            Storage::Planes => Data::Planes(source),
+        let (data, dense_parent) = match storage {
+            Storage::Planes => (Data::Planes(source), None),
             _ => {
                 let mut data = AlignedBytes::zeroed(len * layout.stride() + SLACK);
                 gather_range(&source, &layout, all, range.clone(), data.as_mut_slice());
-                Data::Dense(data)
+                // The parent rows stay for the key plane of border queries.
+                (Data::Dense(data), source.parent.map(|p| (p, geometry.m)))
             }
         };
         Ok(Self {
@@ -95,6 +96,7 @@ impl VectorSpace {
             len,
             data,
             positions: all.clone(),
+            dense_parent,
             keys: OnceLock::new(),
             key_plane: OnceLock::new(),
             tree: OnceLock::new(),
@@ -127,6 +129,7 @@ impl VectorSpace {
             len,
             data: Data::Dense(data),
             positions: Positions::new(),
+            dense_parent: None,
             keys: OnceLock::new(),
             key_plane: OnceLock::new(),
             tree: OnceLock::new(),

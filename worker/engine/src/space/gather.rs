@@ -199,8 +199,34 @@ impl PlaneVectors for PlaneView<'_> {
         write_span(self.layout, &self.src.geometry)
     }
 
-    fn gather(&self, x: usize, y: usize, dst: &mut [u8]) {
-        self.src.gather_run(self.layout, x, y, 1, dst, 0);
+    fn fetch<'b>(&'b self, _index: u64, x: usize, y: usize, buf: &'b mut [u8]) -> &'b [u8] {
+        self.src.gather_run(self.layout, x, y, 1, buf, 0);
+        buf
+    }
+}
+
+/// A dense space as a key-plane sweep reads it: positions to walk, vectors
+/// read in place.
+pub(super) struct DenseView<'a> {
+    pub(super) data: &'a [u8],
+    /// Global index of the first vector.
+    pub(super) base: u64,
+    pub(super) stride: usize,
+    pub(super) positions: &'a Positions,
+}
+
+impl PlaneVectors for DenseView<'_> {
+    fn runs(&self, range: Range<u64>) -> Vec<(u64, u32, u32, u32)> {
+        self.positions.runs(range).collect()
+    }
+
+    fn span(&self) -> usize {
+        0
+    }
+
+    fn fetch<'b>(&'b self, index: u64, _x: usize, _y: usize, _buf: &'b mut [u8]) -> &'b [u8] {
+        let i = (index - self.base) as usize;
+        &self.data[i * self.stride..(i + 1) * self.stride]
     }
 }
 

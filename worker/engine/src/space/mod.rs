@@ -24,7 +24,7 @@ use crate::merge::Hit;
 use crate::positions::Positions;
 use crate::window::{Dense, KeyIndex, KeyPlane, Sweep};
 
-use gather::{gather_range, write_span, PlaneSource, PlaneView, PIECE};
+use gather::{gather_range, write_span, DenseView, PaddedPlane, PlaneSource, PlaneView, PIECE};
 pub use storage::{Storage, DENSE_LIMIT};
 
 /// A zeroed byte buffer whose start is 64-byte aligned, so that a 64-byte SIMD
@@ -71,6 +71,10 @@ pub struct VectorSpace {
     data: Data,
     /// The level's positions (all of them; the space holds `start..start + len`).
     positions: Positions,
+    /// A dense space's parent rows and parent window side, kept for the key
+    /// plane that bounds its border queries (a plane-backed space has them
+    /// in its planes).
+    dense_parent: Option<(PaddedPlane, usize)>,
     /// The vectors in key order, built on the first windowed search of a
     /// dense space (ARCHITECTURE §3.5).
     keys: OnceLock<Option<KeyIndex>>,
@@ -80,6 +84,9 @@ pub struct VectorSpace {
     /// top-k search.
     tree: OnceLock<Option<KdTree>>,
 }
+
+/// One query of a windowed search: its padded values and mask.
+type Probe<'a> = (&'a [u8], &'a [u8]);
 
 /// The value of `cell`, built by `build` if it is empty. Unlike
 /// `OnceLock::get_or_init`, nobody waits for somebody else's build: the keys
@@ -187,7 +194,11 @@ impl VectorSpace {
                 .key_plane
                 .get()
                 .and_then(Option::as_ref)
-                .map_or(0, KeyPlane::bytes);
+                .map_or(0, KeyPlane::bytes)
+            + self
+                .dense_parent
+                .as_ref()
+                .map_or(0, |(p, _)| p.pixels.capacity() as u64);
         let tree = self
             .tree
             .get()
@@ -212,19 +223,27 @@ impl VectorSpace {
         .as_ref()
     }
 
-    /// The keys of a plane-backed space, built on first use; `None` for a
-    /// dense space, a layout without a lo part or a parent window too large
-    /// for two-byte keys.
+    /// The keys of the parent plane, built on first use: a plane-backed
+    /// space's windows, and a dense space's for the queries its key order
+    /// cannot bound (a lo part cut by the canvas border). `None` for a layout
+    /// without a lo part.
     fn key_plane(&self) -> Option<&KeyPlane> {
-        let Data::Planes(src) = &self.data else {
-            return None;
+        let (parent, m) = match (&self.data, &self.dense_parent) {
+            (Data::Planes(src), _) => (src.parent.as_ref()?, src.geometry.m),
+            (Data::Dense(_), Some((p, m))) => (p, *m),
+            (Data::Dense(_), None) => return None,
         };
         once(&self.key_plane, || {
-            let p = src.parent.as_ref()?;
-            let pixels = &p.pixels[..p.pixels.len() - PIECE];
-            KeyPlane::build(pixels, p.width, p.row0, src.geometry.m)
+            let pixels = &parent.pixels[..parent.pixels.len() - PIECE];
+            KeyPlane::build(pixels, parent.width, parent.row0, m)
         })
         .as_ref()
+    }
+
+    /// Whether a dense space's key order bounds a query with this mask (its
+    /// whole lo part is known).
+    fn index_keyed(&self, params: &Params, mask: &[u8]) -> bool {
+        KeyIndex::applies(&self.layout, params, mask) && self.key_index().is_some()
     }
 
     /// The k-d tree of the space, built on first use; `None` when its
@@ -252,7 +271,10 @@ impl VectorSpace {
     pub(crate) fn keyed(&self, params: &Params, mask: &[u8]) -> bool {
         match &self.data {
             Data::Dense(_) => {
-                KeyIndex::applies(&self.layout, params, mask) && self.key_index().is_some()
+                self.index_keyed(params, mask)
+                    || self
+                        .key_plane()
+                        .is_some_and(|k| k.applies(&self.layout, params, mask))
             }
             Data::Planes(_) => self
                 .key_plane()
@@ -262,7 +284,8 @@ impl VectorSpace {
 
     /// The windowed search of `queries` over `sw.range` from `start`
     /// (ARCHITECTURE §3.5). Every query must pass [`VectorSpace::keyed`].
-    /// A `link` is honoured by dense spaces; plane-backed ones search alone.
+    /// A `link` is honoured by the queries a dense space walks in key order;
+    /// those swept by the parent plane's keys search alone.
     ///
     /// # Panics
     /// If the space has no keys.
@@ -274,14 +297,7 @@ impl VectorSpace {
         link: Option<(&crate::link::Link, &[usize])>,
     ) -> (Vec<Hit>, PruneStats) {
         match &self.data {
-            Data::Dense(d) => {
-                let dense = Dense {
-                    data: d.as_slice(),
-                    base: self.start,
-                };
-                let index = self.key_index().expect("a windowed search needs keys");
-                index.search(sw, &dense, queries, start, link)
-            }
+            Data::Dense(d) => self.search_dense_keyed(d.as_slice(), sw, queries, start, link),
             Data::Planes(src) => {
                 let view = PlaneView {
                     src,
@@ -292,6 +308,63 @@ impl VectorSpace {
                 keys.search(sw, &view, queries, start)
             }
         }
+    }
+
+    /// [`VectorSpace::search_keyed`] of a dense space: queries with their
+    /// whole lo part walk the key order, those the border cuts sweep the
+    /// parent plane's keys, side by side.
+    fn search_dense_keyed(
+        &self,
+        data: &[u8],
+        sw: &Sweep,
+        queries: &[Probe],
+        start: &[Hit],
+        link: Option<(&crate::link::Link, &[usize])>,
+    ) -> (Vec<Hit>, PruneStats) {
+        let dense = Dense {
+            data,
+            base: self.start,
+        };
+        let (by_index, by_plane): (Vec<usize>, Vec<usize>) =
+            (0..queries.len()).partition(|&q| self.index_keyed(&sw.params, queries[q].1));
+        if by_plane.is_empty() {
+            let index = self.key_index().expect("a windowed search needs keys");
+            return index.search(sw, &dense, queries, start, link);
+        }
+        let pick = |ids: &[usize]| -> (Vec<Probe>, Vec<Hit>) {
+            ids.iter().map(|&q| (queries[q], start[q])).unzip()
+        };
+        let ((qi, si), (qp, sp)) = (pick(&by_index), pick(&by_plane));
+        // The link numbers the batch's queries: the indexed ones keep theirs.
+        let at: Option<Vec<usize>> = link.map(|(_, at)| by_index.iter().map(|&q| at[q]).collect());
+        let view = DenseView {
+            data,
+            base: self.start,
+            stride: self.layout.stride(),
+            positions: &self.positions,
+        };
+        let keys = self.key_plane().expect("a windowed search needs keys");
+        let (indexed, planed) = rayon::join(
+            || {
+                (!qi.is_empty()).then(|| {
+                    let index = self.key_index().expect("a windowed search needs keys");
+                    let link = link.zip(at.as_deref()).map(|((l, _), at)| (l, at));
+                    index.search(sw, &dense, &qi, &si, link)
+                })
+            },
+            || keys.search(sw, &view, &qp, &sp),
+        );
+        let mut best = start.to_vec();
+        let mut stats = PruneStats::default();
+        for (ids, found) in [(&by_index, indexed), (&by_plane, Some(planed))] {
+            if let Some((hits, s)) = found {
+                for (&q, h) in ids.iter().zip(hits) {
+                    best[q] = h;
+                }
+                stats.add(&s);
+            }
+        }
+        (best, stats)
     }
 
     /// Padded data of the global index range `range` plus the trailing slack
@@ -329,6 +402,53 @@ impl VectorSpace {
                     a = b;
                 }
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layout::{Geometry, Metric, Weights};
+    use crate::plane::{reference_positions, Plane, Sample};
+
+    /// A dense space windows the same queries a plane-backed one does: a
+    /// whole lo part by its key order, a lo part the canvas border cuts to a
+    /// rectangle by the parent plane's keys; only an irregular lo part is
+    /// scanned.
+    #[test]
+    fn dense_spaces_window_border_queries() {
+        let (w, h) = (40usize, 36usize);
+        let fine: Vec<u8> = (0..w * h).map(|i| (i * 37 % 251) as u8).collect();
+        let parent: Vec<u8> = (0..(w / 2) * (h / 2))
+            .map(|i| (i * 53 % 241) as u8)
+            .collect();
+        let g = Geometry::new(5, 3).unwrap();
+        let sample = Sample {
+            fine: Plane::new(w, h, &fine, None).unwrap(),
+            parent: Some(Plane::new(w / 2, h / 2, &parent, None).unwrap()),
+        };
+        let all = reference_positions(&sample, &g).unwrap();
+        let range = 0..all.len() as u64;
+        let params = Params {
+            metric: Metric::L1,
+            weights: Weights::new(1, 2).unwrap(),
+        };
+        let l = g.layout();
+        let mask = |lo: [u8; 9]| {
+            let mut m = vec![0xFFu8; l.stride()];
+            m[l.hi_pad..l.hi_pad + 9].copy_from_slice(&lo);
+            m
+        };
+        let on = 0xFF;
+        let whole = mask([on; 9]);
+        let border = mask([0, on, on, 0, on, on, 0, on, on]);
+        let irregular = mask([on, 0, on, on, on, on, on, on, on]);
+        for storage in [Storage::Dense, Storage::Planes] {
+            let s = VectorSpace::build_with(&sample, &g, &all, range.clone(), storage).unwrap();
+            assert!(s.keyed(&params, &whole), "{storage:?} whole");
+            assert!(s.keyed(&params, &border), "{storage:?} border");
+            assert!(!s.keyed(&params, &irregular), "{storage:?} irregular");
         }
     }
 }

@@ -240,7 +240,7 @@ impl KeyPlane {
                         if any & bit == 0 {
                             continue;
                         }
-                        src.gather(x + j, y, &mut buf);
+                        let v = src.fetch(first + j as u64, x + j, y, &mut buf);
                         for p in probes.iter_mut() {
                             if p.inside & bit == 0 {
                                 continue;
@@ -249,7 +249,7 @@ impl KeyPlane {
                                 &sw.layout,
                                 &sw.params,
                                 0,
-                                &buf,
+                                v,
                                 p.q,
                                 p.m,
                                 0,

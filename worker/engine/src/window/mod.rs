@@ -65,15 +65,17 @@ fn merged(sw: &Sweep, start: &[Hit], parts: &[(Vec<Hit>, PruneStats)]) -> (Vec<H
     (best, stats)
 }
 
-/// Where a plane-backed sweep finds its vectors: their positions and each
-/// vector gathered from the planes.
+/// Where a key-plane sweep finds its vectors: their positions, and each
+/// vector gathered from the planes (a plane-backed space) or read in place
+/// (a dense one).
 pub(crate) trait PlaneVectors: Sync {
     /// The runs (first global index, x, y, length) that cover `range`.
     fn runs(&self, range: Range<u64>) -> Vec<(u64, u32, u32, u32)>;
-    /// Bytes [`PlaneVectors::gather`] may write.
+    /// Bytes of the buffer [`PlaneVectors::fetch`] may write.
     fn span(&self) -> usize;
-    /// Writes the padded vector of position (x, y) to the start of `dst`.
-    fn gather(&self, x: usize, y: usize, dst: &mut [u8]);
+    /// The padded vector of global index `index` at position (x, y), in
+    /// `buf` or in place.
+    fn fetch<'b>(&'b self, index: u64, x: usize, y: usize, buf: &'b mut [u8]) -> &'b [u8];
 }
 
 /// Largest key distance a vector can have over a part of `count` lo
