@@ -7,6 +7,8 @@
 
 use std::ops::Range;
 
+use crate::kernel::PruneStats;
+
 /// One answer: a global reference index and its distance to the query.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub struct Hit {
@@ -152,6 +154,28 @@ fn check(hits: &[Hit], bounds: &[Hit], range: &Range<u64>, linked: bool) -> Resu
         }
     }
     Ok(())
+}
+
+/// One group's answers and pruning figures.
+pub(crate) type Answers = (Vec<Hit>, PruneStats);
+
+/// The answers of a batch searched as groups of its queries: each group's
+/// hits put back at its queries' places (`start` where no group answered),
+/// and the groups' pruning figures added up.
+pub(crate) fn regroup<const N: usize>(
+    mut start: Vec<Hit>,
+    groups: [(&[usize], Option<Answers>); N],
+) -> (Vec<Hit>, PruneStats) {
+    let mut stats = PruneStats::default();
+    for (ids, found) in groups {
+        if let Some((hits, s)) = found {
+            for (&q, h) in ids.iter().zip(hits) {
+                start[q] = h;
+            }
+            stats.add(&s);
+        }
+    }
+    (start, stats)
 }
 
 #[cfg(test)]

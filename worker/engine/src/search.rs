@@ -24,7 +24,7 @@ use crate::error::{EngineError, Result};
 use crate::kdtree::KdTree;
 use crate::kernel::{distance, Kernel, Params, PruneStats, Scan, Sink};
 use crate::link::Link;
-use crate::merge::{merge_best, merge_topk, Hit, Slack};
+use crate::merge::{merge_best, merge_topk, regroup, Hit, Slack};
 use crate::space::VectorSpace;
 use crate::window::Sweep;
 
@@ -386,16 +386,7 @@ impl Engine {
             Some((sub_best, stats))
         };
         let (keyed, scan) = rayon::join(keyed, scan);
-        let mut best = start;
-        let mut stats = PruneStats::default();
-        for (qs, found) in [(&windowed, keyed), (&scanned, scan)] {
-            if let Some((hits, s)) = found {
-                for (&q, h) in qs.iter().zip(hits) {
-                    best[q] = h;
-                }
-                stats.add(&s);
-            }
-        }
+        let (mut best, stats) = regroup(start, [(&windowed, keyed), (&scanned, scan)]);
         for (q, b) in best.iter_mut().enumerate() {
             if *b == queries.bound(q) {
                 *b = Hit::NONE;

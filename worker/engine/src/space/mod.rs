@@ -20,7 +20,7 @@ use crate::error::{EngineError, Result};
 use crate::kdtree::KdTree;
 use crate::kernel::{Params, PruneStats};
 use crate::layout::{Layout, SLACK};
-use crate::merge::Hit;
+use crate::merge::{regroup, Hit};
 use crate::positions::Positions;
 use crate::window::{Dense, KeyIndex, KeyPlane, Sweep};
 
@@ -354,17 +354,10 @@ impl VectorSpace {
             },
             || keys.search(sw, &view, &qp, &sp),
         );
-        let mut best = start.to_vec();
-        let mut stats = PruneStats::default();
-        for (ids, found) in [(&by_index, indexed), (&by_plane, Some(planed))] {
-            if let Some((hits, s)) = found {
-                for (&q, h) in ids.iter().zip(hits) {
-                    best[q] = h;
-                }
-                stats.add(&s);
-            }
-        }
-        (best, stats)
+        regroup(
+            start.to_vec(),
+            [(&by_index, indexed), (&by_plane, Some(planed))],
+        )
     }
 
     /// Padded data of the global index range `range` plus the trailing slack
