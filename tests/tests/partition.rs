@@ -472,6 +472,21 @@ fn worker_still_cut_off_at_a_level_start_is_skipped_there_and_rejoins_later() {
             "B was dropped at level {drop_level}, too late for a skipped level and a rejoin"
         );
         s.assert_dropped_mid_level(&report, drop_level);
+        // Whether the master was held before or after it opened its search
+        // stream to B, the silence is caught within the worker timeout, not
+        // the 10 s call timeout of a control call.
+        let reason = s.b_event(&report, "drop")["reason"].as_str().unwrap();
+        let ms: f64 = reason
+            .split("deadline of ")
+            .nth(1)
+            .and_then(|r| r.split(' ').next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("no deadline in the drop reason {reason:?}"));
+        let limit = WORKER_TIMEOUT.parse::<f64>().unwrap() * 1000.0 + 500.0;
+        assert!(
+            ms <= limit,
+            "B was given {ms} ms, over {limit} ms: {reason}"
+        );
         let skipped = drop_level - 1;
         assert_eq!(
             shares_at(&report, skipped),

@@ -131,8 +131,10 @@ impl ClusterSearch {
     }
 
     /// Opens the search stream of every slot in `participants` that has none
-    /// (streams are kept across batches and levels); the failures.
-    fn open_streams(&mut self, participants: &[usize]) -> Vec<(usize, ClusterError)> {
+    /// (streams are kept across batches and levels), each within the prompt
+    /// timeout × `stretch` (a retried batch's workers were all late); the
+    /// failures.
+    fn open_streams(&mut self, participants: &[usize], stretch: f64) -> Vec<(usize, ClusterError)> {
         let need: Vec<usize> = participants
             .iter()
             .copied()
@@ -141,7 +143,7 @@ impl ClusterSearch {
         if need.is_empty() {
             return Vec::new();
         }
-        let d = self.opts.call_timeout;
+        let d = self.prompt_timeout().mul_f64(stretch);
         let jobs: Vec<_> = need
             .iter()
             .map(|&i| conn::open_stream(self.slots[i].client.clone().expect("active"), d))
@@ -249,7 +251,7 @@ impl ClusterSearch {
         let cost = policy::pair_cost(level.layout().stride(), self.opts.calibration.dims);
         let n = out.batch.len();
         let participants = self.slots_where(|s| s.active() && s.len() > 0);
-        let failures = self.open_streams(&participants);
+        let failures = self.open_streams(&participants, stretch);
         if !failures.is_empty() {
             return Ok(Err((failures, participants.len())));
         }

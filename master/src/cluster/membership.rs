@@ -145,7 +145,7 @@ impl ClusterSearch {
 
     /// Connect and Info (version handshake) with the slots `todo`, side by side.
     /// A worker already known to be down or dropped gets the short
-    /// [`ClusterSearch::retry_timeout`] for both: a worker still cut off or
+    /// [`ClusterSearch::prompt_timeout`] for both: a worker still cut off or
     /// stopped at a level start then delays the level by that much, not by the
     /// full connect and call timeouts of a first contact.
     fn handshakes(&self, todo: &[usize]) -> Results<conn::Handshake> {
@@ -155,7 +155,7 @@ impl ClusterSearch {
             .map(|&i| {
                 let slot = &self.slots[i];
                 let (connect, call) = if slot.down_reason.is_some() || slot.drops > 0 {
-                    (self.retry_timeout(), self.retry_timeout())
+                    (self.prompt_timeout(), self.prompt_timeout())
                 } else {
                     (o.connect_timeout, o.call_timeout)
                 };
@@ -169,10 +169,12 @@ impl ClusterSearch {
         todo.iter().copied().zip(results).collect()
     }
 
-    /// How long a retry of a known-down worker may take to connect and to
-    /// answer Info: the least search deadline, or the connect timeout if that
-    /// is shorter. A healthy worker answers Info in milliseconds.
-    fn retry_timeout(&self) -> Duration {
+    /// How long a call that asks no work of the worker may take: a retry of a
+    /// known-down worker (connect and Info) and opening a search stream. The
+    /// least search deadline, or the connect timeout if that is shorter: a
+    /// healthy worker answers these in milliseconds, and a silent one must
+    /// not hold a level for the full call timeout.
+    pub(super) fn prompt_timeout(&self) -> Duration {
         self.opts.connect_timeout.min(self.opts.deadline_floor)
     }
 
