@@ -382,3 +382,85 @@ fn bad_input_is_refused_with_the_fix_named() {
     assert!(e.contains("texsyn did not write"), "{e}");
     assert!(!d("r").join("small.png").exists());
 }
+
+/// `--candidate-cache`: the first morph stores one file per exemplar and
+/// level, a second one from the same exemplars (another neighbourhood and
+/// seed) reads them all, searches nothing new and writes the bytes it would
+/// write without the cache; a damaged file is searched again.
+#[test]
+fn a_candidate_cache_is_filled_once_and_changes_no_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |f: &str| dir.path().join(f);
+    let a = common::assets().join("bark_color_82.png");
+    let b = common::assets().join("water_pool_color_94.png");
+    let cache = d("kc");
+    let morph = |out: &str, extra: &[&str]| {
+        let o = d(out);
+        ok(&[
+            &[
+                "morph",
+                s(&a),
+                s(&b),
+                "--ramp",
+                "x",
+                "--size",
+                "96x64",
+                "-q",
+            ][..],
+            &["-o", s(&o)],
+            extra,
+        ]
+        .concat());
+        bytes(&o)
+    };
+    let files = || {
+        let mut f: Vec<_> = std::fs::read_dir(&cache)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        f.sort();
+        f
+    };
+    let plain = morph("plain.png", &[]);
+    let first = morph("first.png", &["--candidate-cache", s(&cache)]);
+    assert_eq!(first, plain, "a cache miss changed the output");
+    let stored = files();
+    // 2 exemplars × the 5 levels of an 82² exemplar (steps 16 down to 1).
+    assert_eq!(stored.len(), 2 * 5, "{stored:?}");
+    let times: Vec<_> = stored
+        .iter()
+        .map(|f| std::fs::metadata(f).unwrap().modified().unwrap())
+        .collect();
+    let half = ["--neighbourhood", "half", "--seed", "4"];
+    let plain_half = morph("plain_half.png", &half);
+    let hit = morph(
+        "hit.png",
+        &[&half[..], &["--candidate-cache", s(&cache)]].concat(),
+    );
+    assert_eq!(hit, plain_half, "a cache hit changed the output");
+    assert_ne!(hit, first, "the second morph is another synthesis");
+    assert_eq!(files(), stored, "a hit stores nothing new");
+    for (f, t) in stored.iter().zip(&times) {
+        assert_eq!(std::fs::metadata(f).unwrap().modified().unwrap(), *t);
+    }
+    // A damaged file is searched again: same output, file rewritten.
+    std::fs::write(&stored[0], b"damaged").unwrap();
+    let again = morph("again.png", &["--candidate-cache", s(&cache)]);
+    assert_eq!(again, plain);
+    assert!(std::fs::metadata(&stored[0]).unwrap().len() > 1000);
+    // The block method has no candidate sets.
+    let e = refused(&[
+        "synth",
+        s(&a),
+        "--size",
+        "64x64",
+        "-o",
+        s(&d("x.png")),
+        "--candidate-cache",
+        s(&cache),
+    ]);
+    assert!(
+        e.contains("--candidate-cache belongs to --method parallel"),
+        "{e}"
+    );
+}

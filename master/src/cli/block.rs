@@ -236,6 +236,10 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
     }
     ensure!(a.jitter.is_none(), "--jitter belongs to --method parallel");
     ensure!(a.start.is_none(), "--start belongs to --method parallel");
+    ensure!(
+        a.candidate_cache.is_none(),
+        "--candidate-cache belongs to --method parallel"
+    );
     // `synth`'s own stitching default is path (ARCHITECTURE §3.12).
     let mut cfg = config_with_stitch(&a.common, Stitch::Path)?;
     let (width, height) = parse_size(&a.size)?;
@@ -328,6 +332,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
             .unwrap_or_else(|| DEFAULT_JITTER_ARG.into()),
         start: a.start.clone().unwrap_or_else(|| "random".into()),
         seed: c.seed,
+        candidate_cache: a.candidate_cache.clone(),
         run: c.run.clone(),
     };
     parallel::run_synth(&a.input, &a.size, &c.output, c.copy_map.as_deref(), &args)

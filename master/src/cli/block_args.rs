@@ -178,6 +178,10 @@ pub struct SynthArgs {
     /// tiled (the paper's §4.1, prone to copying the sample).
     #[arg(long)]
     pub start: Option<String>,
+    /// --method parallel: keep each level's k-coherence candidate sets in
+    /// this directory, so a later run from the same sample skips their search.
+    #[arg(long, value_name = "DIR")]
+    pub candidate_cache: Option<PathBuf>,
     /// Texture mixing: use FILE as the sample of pyramid level L (0 = finest), as L=FILE.
     #[arg(long = "level-sample", value_name = "L=FILE")]
     pub level_samples: Vec<String>,

@@ -10,6 +10,7 @@ use clap::Args;
 use super::progress::Bars;
 use super::{parse_size, RunArgs};
 use crate::imaging::{self, ColorImage};
+use crate::parallel::cache::CandidateCache;
 use crate::parallel::driver::Start;
 use crate::parallel::synth::{self, MorphColour, Neighbourhood, ParallelSettings, Synthesis};
 use crate::parallel::weights;
@@ -73,6 +74,10 @@ pub struct ParallelArgs {
     /// Random seed of the jitter.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Keep each level's k-coherence candidate sets in this directory: a
+    /// later run from the same exemplars skips their search (same output).
+    #[arg(long, value_name = "DIR")]
+    pub candidate_cache: Option<PathBuf>,
     #[command(flatten)]
     pub run: RunArgs,
 }
@@ -108,6 +113,11 @@ pub fn parse_neighbourhood(s: &str) -> Result<Neighbourhood> {
     })
 }
 
+/// Opens `--candidate-cache`, if given.
+pub(super) fn open_cache(dir: Option<&Path>) -> Result<Option<CandidateCache>> {
+    dir.map(CandidateCache::open).transpose()
+}
+
 /// Parses `--jitter`: one strength in [0, 1], or one per level.
 pub(super) fn parse_jitter(s: &str) -> Result<Vec<f64>> {
     s.split(',')
@@ -131,6 +141,7 @@ impl ParallelArgs {
             seed: self.seed,
             budget: self.run.budget(),
             colour,
+            cache: open_cache(self.candidate_cache.as_deref())?,
             ..ParallelSettings::default()
         })
     }

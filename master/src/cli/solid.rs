@@ -67,6 +67,10 @@ pub struct SolidArgs {
     /// preview. Repeat for more maps.
     #[arg(long = "replay", value_name = "MAP | [M:]AXES=MAP,...")]
     pub replay: Vec<String>,
+    /// Keep each level's k-coherence candidate sets in this directory: a
+    /// later solid from the same views skips their search (same output).
+    #[arg(long, value_name = "DIR")]
+    pub candidate_cache: Option<PathBuf>,
     #[command(flatten)]
     pub run: RunArgs,
 }
@@ -188,6 +192,7 @@ impl TryFrom<&SolidArgs> for SolidJob {
             passes: a.passes,
             k: a.k,
             budget: a.run.budget(),
+            cache: super::parallel::open_cache(a.candidate_cache.as_deref())?,
             ..SolidSettings::default().base
         };
         let replays = a

@@ -219,6 +219,29 @@ impl Candidates {
         })
     }
 
+    /// Sets read back from a cache ([`super::cache`]): `k` per pixel of a
+    /// `size` level, row by row, searched on a grid of `stride`.
+    pub(super) fn from_parts(
+        k: usize,
+        stride: usize,
+        size: (usize, usize),
+        table: Vec<[u32; 2]>,
+    ) -> Self {
+        debug_assert_eq!(table.len(), size.0 * size.1 * k);
+        Self {
+            k,
+            stride,
+            width: size.0,
+            height: size.1,
+            table,
+        }
+    }
+
+    /// Every pixel's candidates, row by row, `k` slots each.
+    pub fn entries(&self) -> &[[u32; 2]] {
+        &self.table
+    }
+
     /// Stride of the reference grid (1 = every pixel a reference).
     pub fn stride(&self) -> usize {
         self.stride

@@ -8,6 +8,7 @@ use anyhow::{ensure, Result};
 use rayon::prelude::*;
 
 use super::appearance::Pca;
+use super::cache::{CandidateCache, SetsOf};
 use super::candidates::{Candidates, Spacing};
 use super::exemplar::ExemplarLevel;
 use super::neighbourhood::Neighbourhood;
@@ -33,6 +34,9 @@ pub struct ParallelSettings {
     pub budget: crate::budget::Budget,
     /// How a morph's output colour is drawn from its exemplars.
     pub colour: MorphColour,
+    /// Where the candidate sets are kept between runs (none: searched
+    /// every run).
+    pub cache: Option<CandidateCache>,
 }
 
 /// How a morph's output colour is drawn from its exemplars (ARCHITECTURE
@@ -61,6 +65,7 @@ impl Default for ParallelSettings {
             seed: 1,
             budget: crate::budget::Budget::default(),
             colour: MorphColour::default(),
+            cache: None,
         }
     }
 }
@@ -144,7 +149,7 @@ impl LevelExemplars {
     /// Builds the level of step `h` of every exemplar and searches its
     /// candidate sets through `backend` (exemplar `e` of `level` is the
     /// backend's level `level · exemplars + e`: a worker keeps one level per
-    /// number).
+    /// number), or reads them from `cache` when an earlier run stored them.
     #[allow(clippy::too_many_arguments)]
     fn build(
         exemplars: &[&ColorImage],
@@ -153,6 +158,7 @@ impl LevelExemplars {
         points: &[Vec<[i32; 2]>],
         k: usize,
         level: usize,
+        cache: Option<&CandidateCache>,
         backend: &mut dyn SearchBackend,
         progress: &dyn Progress,
     ) -> Result<Self> {
@@ -161,16 +167,33 @@ impl LevelExemplars {
         let mut stride = 1;
         for (e, img) in exemplars.iter().enumerate() {
             let level_ex = ExemplarLevel::build(img, h, pca, points);
-            let c = Candidates::search(
-                &level_ex.appearance,
-                (level_ex.width, level_ex.height),
-                Spacing::of_step(h),
-                level_ex.dims,
+            let of = SetsOf {
+                appearance: &level_ex.appearance,
+                size: (level_ex.width, level_ex.height),
+                dims: level_ex.dims,
+                spacing: Spacing::of_step(h),
                 k,
-                level * exemplars.len() + e,
-                backend,
-                progress,
-            )?;
+            };
+            let mut search = || {
+                Candidates::search(
+                    of.appearance,
+                    of.size,
+                    of.spacing,
+                    of.dims,
+                    k,
+                    level * exemplars.len() + e,
+                    backend,
+                    progress,
+                )
+            };
+            let c = match cache {
+                Some(cache) => {
+                    let (c, hit) = cache.get_or_search(&of, search)?;
+                    tracing::debug!(level, exemplar = e, hit, "candidate cache");
+                    c
+                }
+                None => search()?,
+            };
             if e == 0 {
                 stride = c.stride();
             }
@@ -217,7 +240,17 @@ pub(super) fn run_levels<L: Lattice>(
     for level in 0..levels {
         let h = 1usize << (levels - 1 - level);
         let t = std::time::Instant::now();
-        let ex = LevelExemplars::build(exemplars, h, pca, &points, s.k, level, backend, progress)?;
+        let ex = LevelExemplars::build(
+            exemplars,
+            h,
+            pca,
+            &points,
+            s.k,
+            level,
+            s.cache.as_ref(),
+            backend,
+            progress,
+        )?;
         strides.push(ex.stride);
         let t_exemplars = t.elapsed().as_secs_f64();
         lattice.prepare(level, h, jitter_at(s, level));

@@ -10,11 +10,13 @@
 //! - [`coords`]: coordinate levels, upsampling and the §4.2 jitter;
 //! - [`appearance`]: the appearance space (5×5 windows, PCA);
 //! - [`candidates`]: k-coherence sets from the engine's top-k search;
+//! - [`cache`]: those sets kept on disk, so an exemplar is analysed once;
 //! - [`weights`]: weight maps of a morph;
 //! - [`synth`]: the plane: synthesis and morph (§3–4);
 //! - [`solid`]: the volume: solid textures from 2-D views (§5).
 
 pub mod appearance;
+pub mod cache;
 pub mod candidates;
 pub mod coords;
 pub mod driver;
