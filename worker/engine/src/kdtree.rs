@@ -48,7 +48,9 @@ pub(crate) struct KdTree {
     hi_part: Vec<bool>,
     /// Padded offset of component `d` in a query.
     offset: Vec<usize>,
-    points: Vec<u8>,
+    /// The vectors in tree order, each zero-padded to [`MAX_DIMS`] bytes, so
+    /// a leaf's distances are whole-register operations.
+    points: Vec<[u8; MAX_DIMS]>,
     index: Vec<u64>,
     nodes: Vec<Node>,
 }
@@ -71,11 +73,15 @@ impl KdTree {
         let mut order: Vec<u32> = (0..count as u32).collect();
         let mut nodes = Vec::with_capacity(2 * count / LEAF + 1);
         split(&raw, dims, &mut order, 0, &mut nodes);
-        let mut points = Vec::with_capacity(raw.len());
-        for &i in &order {
-            let i = i as usize;
-            points.extend_from_slice(&raw[i * dims..(i + 1) * dims]);
-        }
+        let points = order
+            .iter()
+            .map(|&i| {
+                let i = i as usize;
+                let mut p = [0u8; MAX_DIMS];
+                p[..dims].copy_from_slice(&raw[i * dims..(i + 1) * dims]);
+                p
+            })
+            .collect();
         let index = order.iter().map(|&i| start + u64::from(i)).collect();
         Self {
             dims,
@@ -89,7 +95,8 @@ impl KdTree {
 
     /// Bytes held.
     pub(crate) fn bytes(&self) -> u64 {
-        (self.points.len() + self.index.len() * 8 + self.nodes.len() * size_of::<Node>()) as u64
+        (self.points.len() * MAX_DIMS + self.index.len() * 8 + self.nodes.len() * size_of::<Node>())
+            as u64
     }
 
     /// The `k` best vectors with an index in `range` and a distance below
@@ -114,17 +121,27 @@ impl KdTree {
                 })
             })
             .collect();
+        // One weight for every component (a one-part space): a distance is
+        // that weight times the plain sum over the padded vector.
+        let uniform = weight
+            .first()
+            .copied()
+            .filter(|w| weight.iter().all(|x| x == w));
         queries
             .par_iter()
             .zip(worst)
             .map_init(
                 || vec![0u64; self.dims],
                 |off, (q, &worst)| {
-                    let q: Vec<u8> = self.offset.iter().map(|&o| q[o]).collect();
+                    let mut q16 = [0u8; MAX_DIMS];
+                    for (slot, &o) in q16.iter_mut().zip(&self.offset) {
+                        *slot = q[o];
+                    }
                     let mut s = Search {
                         tree: self,
-                        q: &q,
+                        q: &q16,
                         weight: &weight,
+                        uniform,
                         metric: params.metric,
                         range: range.clone(),
                         k,
@@ -192,8 +209,11 @@ fn split(raw: &[u8], dims: usize, order: &mut [u32], lo: usize, nodes: &mut Vec<
 /// One query's search.
 struct Search<'a> {
     tree: &'a KdTree,
-    q: &'a [u8],
+    /// The query's components, zero-padded like the points.
+    q: &'a [u8; MAX_DIMS],
     weight: &'a [u64],
+    /// The weight of every component, when they all have the same.
+    uniform: Option<u64>,
     metric: Metric,
     range: std::ops::Range<u64>,
     k: usize,
@@ -257,17 +277,22 @@ impl Search<'_> {
                 continue;
             }
             let limit = self.limit();
-            let v = &self.tree.points[p * dims..(p + 1) * dims];
-            let mut dist = 0u64;
-            let mut over = false;
-            for (d, (&a, &b)) in v.iter().zip(self.q).enumerate() {
-                dist += self.term(d, u64::from(a.abs_diff(b)));
-                if dist > limit {
-                    over = true;
-                    break;
+            let v = &self.tree.points[p];
+            let dist = match self.uniform {
+                // The padding is zero in both, so it adds nothing.
+                Some(w) => w * u64::from(padded_sum(v, self.q, self.metric)),
+                None => {
+                    let mut dist = 0u64;
+                    for (d, (&a, &b)) in v[..dims].iter().zip(self.q).enumerate() {
+                        dist += self.term(d, u64::from(a.abs_diff(b)));
+                        if dist > limit {
+                            break;
+                        }
+                    }
+                    dist
                 }
-            }
-            if over || dist >= self.worst {
+            };
+            if dist > limit || dist >= self.worst {
                 continue;
             }
             let hit = Hit { index, dist };
@@ -281,4 +306,26 @@ impl Search<'_> {
             self.list.insert(at, hit);
         }
     }
+}
+
+/// `Σ |a − b|` (L1) or `Σ (a − b)²` (L2) over two padded vectors: a loop of
+/// fixed length over bytes, which the compiler turns into a few vector
+/// instructions.
+#[inline(always)]
+fn padded_sum(a: &[u8; MAX_DIMS], b: &[u8; MAX_DIMS], metric: Metric) -> u32 {
+    let mut sum = 0u32;
+    match metric {
+        Metric::L1 => {
+            for i in 0..MAX_DIMS {
+                sum += u32::from(a[i].abs_diff(b[i]));
+            }
+        }
+        Metric::L2 => {
+            for i in 0..MAX_DIMS {
+                let d = u32::from(a[i].abs_diff(b[i]));
+                sum += d * d;
+            }
+        }
+    }
+    sum
 }

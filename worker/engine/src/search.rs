@@ -458,6 +458,11 @@ impl Engine {
 
     /// The `k` best matches per query, sorted by (distance, index); fewer when
     /// the range holds fewer than `k` vectors.
+    ///
+    /// A query's coherence candidates only speed it up: when `k` distinct
+    /// ones lie in `range`, the `k`-th smallest of their distances bounds the
+    /// answer (every vector of the top-k is at most that far), so the search
+    /// starts from that cut instead of from nothing. The answer is the same.
     pub fn search_topk(
         &self,
         space: &VectorSpace,
@@ -466,8 +471,48 @@ impl Engine {
         params: &Params,
         k: usize,
     ) -> Result<Vec<Vec<Hit>>> {
-        let worst = vec![u64::MAX; queries.len()];
+        self.check(space, &range, queries)?;
+        let worst = self.topk_cut_from_candidates(space, &range, queries, params, k);
         self.topk_below(space, range, queries, params, k, worst)
+    }
+
+    /// Per query, one more than the `k`-th smallest distance of its distinct
+    /// candidates in `range`, or `u64::MAX` when it has fewer than `k`.
+    fn topk_cut_from_candidates(
+        &self,
+        space: &VectorSpace,
+        range: &Range<u64>,
+        queries: &QueryBatch,
+        params: &Params,
+        k: usize,
+    ) -> Vec<u64> {
+        let layout = space.layout();
+        (0..queries.len())
+            .into_par_iter()
+            .map(|q| {
+                let mut c: Vec<u64> = queries
+                    .candidates(q)
+                    .iter()
+                    .copied()
+                    .filter(|c| range.contains(c))
+                    .collect();
+                c.sort_unstable();
+                c.dedup();
+                if !self.prune || k == 0 || c.len() < k {
+                    return u64::MAX;
+                }
+                let mut d: Vec<u64> = c
+                    .iter()
+                    .filter_map(|&i| space.vector(i))
+                    .map(|v| distance(&layout, params, &v, queries.values(q), queries.mask(q)))
+                    .collect();
+                if d.len() < k {
+                    return u64::MAX;
+                }
+                let (_, kth, _) = d.select_nth_unstable(k - 1);
+                kth.saturating_add(1)
+            })
+            .collect()
     }
 
     /// The near-ties of each query: of its `k` best references in `range`,

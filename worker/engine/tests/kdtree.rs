@@ -1,6 +1,7 @@
 //! The k-d tree's top-k (ARCHITECTURE §3.5) equals the unpruned scan: on
 //! random low-dimensional spaces with many ties, L1 and L2, weighted parts,
-//! sub-ranges (as a worker searches its part), bounds and near-ties.
+//! sub-ranges (as a worker searches its part), bounds, coherence candidates
+//! and near-ties.
 
 use proptest::prelude::*;
 use texsyn_engine::{Engine, Layout, Metric, Params, QueryBatch, Slack, VectorSpace, Weights};
@@ -44,7 +45,18 @@ proptest! {
         let n = 5000;
         let raw = vectors(n, layout.dims(), levels, seed);
         let space = VectorSpace::from_unpadded(layout, 0, &raw).unwrap();
-        let queries = batch(layout, &vectors(200, layout.dims(), levels, seed ^ 0xABCD));
+        let mut queries = batch(layout, &vectors(200, layout.dims(), levels, seed ^ 0xABCD));
+        // Coherence candidates (some out of a sub-range, some repeated, some
+        // fewer than k) cut the top-k search; the answer must not change.
+        let mut r = seed | 1;
+        for q in 0..queries.len() {
+            r = r.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let count = (r >> 33) as usize % 40;
+            let c = (0..count as u64)
+                .map(|j| (r >> 7).wrapping_add(j * j * 7919) % n as u64)
+                .collect();
+            queries.set_candidates(q, c);
+        }
         let params = Params {
             metric: if l2 { Metric::L2 } else { Metric::L1 },
             weights: Weights::new(wh, if lo == 0 { 0 } else { wl }).unwrap(),
