@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use sha2::{Digest, Sha256};
 
-use super::candidates::{Candidates, Spacing, EXACT_PIXELS, MAX_K, SEARCH_DIMS};
+use super::candidates::{Candidates, SetsOf, EXACT_PIXELS, MAX_K, SEARCH_DIMS};
 use crate::imaging;
 
 /// Version of the file layout and of the search that fills it: a change to
@@ -35,39 +35,28 @@ pub struct CandidateCache {
     dir: PathBuf,
 }
 
-/// What one level's sets are: the inputs of [`Candidates::search`] that
-/// decide its answer.
-pub struct SetsOf<'a> {
-    pub appearance: &'a [f32],
-    pub size: (usize, usize),
-    pub dims: usize,
-    pub spacing: Spacing,
-    pub k: usize,
-}
-
-impl SetsOf<'_> {
-    /// The key: SHA-256 of every input, in a fixed little-endian layout.
-    fn key(&self) -> [u8; 32] {
-        let mut h = Sha256::new();
-        h.update(MAGIC);
-        for v in [
-            FORMAT as u64,
-            self.size.0 as u64,
-            self.size.1 as u64,
-            self.dims as u64,
-            self.spacing.stride as u64,
-            u64::from(self.spacing.radius),
-            self.k as u64,
-            SEARCH_DIMS as u64,
-            EXACT_PIXELS as u64,
-        ] {
-            h.update(v.to_le_bytes());
-        }
-        for a in self.appearance {
-            h.update(a.to_le_bytes());
-        }
-        h.finalize().into()
+/// The key of `of`'s file: SHA-256 of every input of the search, in a fixed
+/// little-endian layout.
+fn key_of(of: &SetsOf<'_>) -> [u8; 32] {
+    let mut h = Sha256::new();
+    h.update(MAGIC);
+    for v in [
+        FORMAT as u64,
+        of.size.0 as u64,
+        of.size.1 as u64,
+        of.dims as u64,
+        of.spacing.stride as u64,
+        u64::from(of.spacing.radius),
+        of.k as u64,
+        SEARCH_DIMS as u64,
+        EXACT_PIXELS as u64,
+    ] {
+        h.update(v.to_le_bytes());
     }
+    for a in of.appearance {
+        h.update(a.to_le_bytes());
+    }
+    h.finalize().into()
 }
 
 impl CandidateCache {
@@ -101,7 +90,7 @@ impl CandidateCache {
         of: &SetsOf<'_>,
         search: impl FnOnce() -> Result<Candidates>,
     ) -> Result<(Candidates, bool)> {
-        let key = of.key();
+        let key = key_of(of);
         let path = self.path(&key);
         if path.exists() {
             match read(&path, &key, of) {
@@ -151,7 +140,7 @@ fn read(path: &Path, key: &[u8; 32], of: &SetsOf<'_>) -> Result<Candidates> {
 fn decode(bytes: &[u8], key: &[u8; 32], of: &SetsOf<'_>) -> Result<Candidates> {
     anyhow::ensure!(bytes.len() >= HEADER, "shorter than its header");
     anyhow::ensure!(&bytes[..8] == MAGIC, "not a candidate cache file");
-    let word = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes"));
+    let word = |at: usize| word_at(bytes, at);
     anyhow::ensure!(word(8) == FORMAT, "format {}, not {FORMAT}", word(8));
     anyhow::ensure!(&bytes[12..44] == key, "written for other inputs");
     let [k, stride, w, h] = [44, 48, 52, 56].map(|at| word(at) as usize);
@@ -186,6 +175,7 @@ fn word_at(c: &[u8], at: usize) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::parallel::candidates::Spacing;
 
     fn sets(appearance: &[f32]) -> SetsOf<'_> {
         SetsOf {
@@ -231,7 +221,7 @@ mod tests {
         let a = [0.5f32; 8];
         let of = sets(&a);
         cache.get_or_search(&of, || Ok(candidates())).unwrap();
-        let path = cache.path(&of.key());
+        let path = cache.path(&key_of(&of));
         let good = std::fs::read(&path).unwrap();
         let damages: Vec<Vec<u8>> = vec![
             good[..good.len() - 1].to_vec(),

@@ -78,21 +78,32 @@ impl Spacing {
     }
 }
 
+/// What decides one level's sets: the level's appearance vectors (`dims`
+/// each, row by row, `size` pixels), the spacing and k. The search's input,
+/// and the key of [`super::cache`].
+pub struct SetsOf<'a> {
+    pub appearance: &'a [f32],
+    pub size: (usize, usize),
+    pub dims: usize,
+    pub spacing: Spacing,
+    pub k: usize,
+}
+
 impl Candidates {
-    /// Searches the sets of a `width`×`height` level whose appearance vectors
-    /// (`dims` each, row by row) are `appearance`. `level` names the level to
-    /// the backend.
-    #[allow(clippy::too_many_arguments)]
+    /// Searches the sets of `of`. `level` names the level to the backend.
     pub fn search(
-        appearance: &[f32],
-        (width, height): (usize, usize),
-        spacing: Spacing,
-        dims: usize,
-        k: usize,
+        of: &SetsOf<'_>,
         level: usize,
         backend: &mut dyn SearchBackend,
         progress: &dyn Progress,
     ) -> Result<Self> {
+        let SetsOf {
+            appearance,
+            size: (width, height),
+            dims,
+            spacing,
+            k,
+        } = *of;
         ensure!((1..=MAX_K).contains(&k), "k must be in 1..={MAX_K}");
         ensure!(appearance.len() == width * height * dims, "appearance size");
         let large = ((width * height) as f64 / EXACT_PIXELS as f64)
@@ -356,17 +367,14 @@ mod tests {
         };
         for spacing in [Spacing::of_step(1), Spacing::of_step(8), grid] {
             let mut backend = LocalSearch::new(Engine::default());
-            let c = Candidates::search(
-                &app,
-                (w, h),
-                spacing,
+            let of = SetsOf {
+                appearance: &app,
+                size: (w, h),
                 dims,
+                spacing,
                 k,
-                0,
-                &mut backend,
-                &crate::progress::Silent,
-            )
-            .unwrap();
+            };
+            let c = Candidates::search(&of, 0, &mut backend, &crate::progress::Silent).unwrap();
             let stride = spacing.stride;
             assert_eq!(c.stride(), stride);
             let used: Vec<f32> = app

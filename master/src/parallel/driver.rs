@@ -8,8 +8,8 @@ use anyhow::{ensure, Result};
 use rayon::prelude::*;
 
 use super::appearance::Pca;
-use super::cache::{CandidateCache, SetsOf};
-use super::candidates::{Candidates, Spacing};
+use super::cache::CandidateCache;
+use super::candidates::{Candidates, SetsOf, Spacing};
 use super::exemplar::ExemplarLevel;
 use super::neighbourhood::Neighbourhood;
 use crate::imaging::ColorImage;
@@ -174,18 +174,8 @@ impl LevelExemplars {
                 spacing: Spacing::of_step(h),
                 k,
             };
-            let mut search = || {
-                Candidates::search(
-                    of.appearance,
-                    of.size,
-                    of.spacing,
-                    of.dims,
-                    k,
-                    level * exemplars.len() + e,
-                    backend,
-                    progress,
-                )
-            };
+            let mut search =
+                || Candidates::search(&of, level * exemplars.len() + e, backend, progress);
             let c = match cache {
                 Some(cache) => {
                     let (c, hit) = cache.get_or_search(&of, search)?;
