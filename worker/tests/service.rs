@@ -274,6 +274,10 @@ async fn cluster_of_one_two_three_workers_equals_local_engine() {
         }
         let mut best = vec![Hit::NONE; count];
         let mut topk = vec![Vec::new(); count];
+        let mut cut_topk = vec![Vec::new(); count];
+        // The tightest cut a master may send: one above each query's k-th
+        // distance over the whole level.
+        let cuts: Vec<u64> = local_topk.iter().map(|l| l[k - 1].dist + 1).collect();
         for (i, c) in clients.iter_mut().enumerate() {
             let i = i as u64;
             // Uneven parts: the first worker gets less.
@@ -298,11 +302,30 @@ async fn cluster_of_one_two_three_workers_equals_local_engine() {
                 vec![
                     batch("job", 3, 10, 1, count, &q),
                     batch("job", 3, 11, k as u32, count, &q),
+                    pb::SearchBatch {
+                        topk_cut: cuts.clone(),
+                        ..batch("job", 3, 12, k as u32, count, &q)
+                    },
                 ],
             )
             .await
             .unwrap();
             assert_eq!((answers[0].batch_id, answers[1].batch_id), (10, 11));
+            // Under the cut a list holds only what is below it, padded.
+            let lists = topk_hits(&answers[2], count).unwrap();
+            for (q, l) in lists.iter().enumerate() {
+                assert_eq!(l.len(), k, "query {q}: per_query slots");
+                let real = l.iter().take_while(|h| !h.is_none()).count();
+                assert!(
+                    l[real..].iter().all(Hit::is_none),
+                    "query {q}: padding last"
+                );
+                assert!(l[..real]
+                    .iter()
+                    .all(|h| h.dist < cuts[q] && (start..end).contains(&h.index)));
+                let real_list = l[..real].to_vec();
+                cut_topk[q] = merge_topk(&cut_topk[q], &real_list, k);
+            }
             let part = best_hits(&answers[0], count).unwrap();
             assert!(part.iter().all(|h| (start..end).contains(&h.index)));
             merge_best(&mut best, &part);
@@ -312,6 +335,7 @@ async fn cluster_of_one_two_three_workers_equals_local_engine() {
         }
         assert_eq!(best, local, "{n} worker(s)");
         assert_eq!(topk, local_topk, "{n} worker(s), top-{k}");
+        assert_eq!(cut_topk, local_topk, "{n} worker(s), top-{k} under cuts");
         for (c, w) in clients.iter_mut().zip(workers) {
             let freed = c
                 .end_job(pb::EndJobRequest {
@@ -802,6 +826,20 @@ async fn malformed_searches(c: &mut Client, q: &(Vec<u8>, Vec<u8>)) {
             Code::InvalidArgument,
         ),
     ];
+    // Top-k cuts: one per query, and only for top-k search.
+    let cut_batches = [
+        pb::SearchBatch {
+            topk_cut: vec![9; 3],
+            ..batch("job", 2, 0, 3, 4, q)
+        },
+        pb::SearchBatch {
+            topk_cut: vec![9; 4],
+            ..batch("job", 2, 0, 1, 4, q)
+        },
+    ];
+    let bad_batches = bad_batches
+        .into_iter()
+        .chain(cut_batches.map(|b| (b, Code::InvalidArgument)));
     for (b, want) in bad_batches {
         let desc = format!("{} {} {} {}", b.job_id, b.level, b.count, b.epoch);
         assert_eq!(code(search(c, vec![b]).await), want, "{desc}");

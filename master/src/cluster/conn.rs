@@ -412,6 +412,7 @@ async fn ask_chunk(
     let count = chunk.count as usize;
     let bounds =
         bounds_from_proto(&chunk).map_err(|e| ClusterError::BadAnswer(e.message().into()))?;
+    let cut = chunk.topk_cut.clone();
     chunk.linked = link.is_some();
     // What the worker knows per query (sent), and the least it reported.
     let mut sent: Vec<u64> = bounds.iter().map(|h| h.dist).collect();
@@ -495,7 +496,8 @@ async fn ask_chunk(
     } else {
         let lists =
             topk_hits(&r, bounds.len()).map_err(|e| ClusterError::BadAnswer(format!("{e:#}")))?;
-        flat_topk(&lists, k, range).map_err(ClusterError::BadAnswer)?
+        flat_topk(&lists, k, range, (!cut.is_empty()).then_some(&cut[..]))
+            .map_err(ClusterError::BadAnswer)?
     };
     let seconds = if r.seconds.is_finite() && r.seconds >= 0.0 {
         r.seconds
@@ -508,31 +510,54 @@ async fn ask_chunk(
 /// A worker's top-k lists checked and laid flat, `k` slots per query padded
 /// with [`Hit::NONE`]: each list must be as long as the range allows
 /// (`min(k, range length)`), sorted by (distance, index) without repeats, and
-/// stay inside the range.
+/// stay inside the range. Under a per-query `cut` a list holds only matches
+/// below its cut and may end early (unpadded, or padded with [`Hit::NONE`]).
 pub(crate) fn flat_topk(
     lists: &[Vec<Hit>],
     k: usize,
     range: &Range<u64>,
+    cut: Option<&[u64]>,
 ) -> Result<Vec<Hit>, String> {
     let want = (k as u64).min(range.end.saturating_sub(range.start)) as usize;
+    if cut.is_some_and(|c| c.len() != lists.len()) {
+        return Err(format!(
+            "answered {} lists for {} cuts",
+            lists.len(),
+            cut.map_or(0, <[u64]>::len)
+        ));
+    }
     let mut out = Vec::with_capacity(lists.len() * k);
-    for l in lists {
-        if l.len() != want {
-            return Err(format!("answered {} of the {want} best matches", l.len()));
+    for (q, l) in lists.iter().enumerate() {
+        let limit = cut.map(|c| c[q]);
+        // The answer is the list up to its first padding slot; only a cut
+        // may end it before `want`.
+        let len = l.iter().position(Hit::is_none).unwrap_or(l.len());
+        if l.len() > want || (limit.is_none_or(|c| c == u64::MAX) && len != want) {
+            return Err(format!("answered {len} of the {want} best matches"));
         }
-        for (i, h) in l.iter().enumerate() {
+        if l[len..].iter().any(|h| !h.is_none()) {
+            return Err("a top-k list goes on after its padding".into());
+        }
+        for (i, h) in l[..len].iter().enumerate() {
             if !range.contains(&h.index) || h.dist == u64::MAX {
                 return Err(format!(
                     "answered index {} outside its range {}..{}",
                     h.index, range.start, range.end
                 ));
             }
+            if limit.is_some_and(|c| h.dist >= c) {
+                return Err(format!(
+                    "answered distance {} for a query cut at {}",
+                    h.dist,
+                    limit.unwrap_or(u64::MAX)
+                ));
+            }
             if i > 0 && h.key() <= l[i - 1].key() {
                 return Err("top-k list not sorted by (distance, index)".into());
             }
         }
-        out.extend_from_slice(l);
-        out.extend(std::iter::repeat_n(Hit::NONE, k - l.len()));
+        out.extend_from_slice(&l[..len]);
+        out.extend(std::iter::repeat_n(Hit::NONE, k - len));
     }
     Ok(out)
 }
@@ -557,6 +582,37 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn hit(index: u64, dist: u64) -> Hit {
+        Hit { index, dist }
+    }
+
+    #[test]
+    fn topk_lists_are_full_unless_a_cut_ends_them() {
+        let range = 10..20;
+        let full = vec![hit(12, 3), hit(15, 4), hit(11, 9)];
+        let short = vec![hit(12, 3), Hit::NONE, Hit::NONE];
+        // Without a cut a list holds min(k, range length) matches.
+        assert!(flat_topk(std::slice::from_ref(&full), 3, &range, None).is_ok());
+        assert!(flat_topk(std::slice::from_ref(&short), 3, &range, None).is_err());
+        // A cut lets it end early, padded or not, and the answer is padded.
+        let flat = flat_topk(std::slice::from_ref(&short), 3, &range, Some(&[5])).unwrap();
+        assert_eq!(flat, short);
+        let unpadded = vec![hit(12, 3)];
+        assert_eq!(
+            flat_topk(&[unpadded], 3, &range, Some(&[5])).unwrap(),
+            short
+        );
+        // A cut of u64::MAX cuts nothing.
+        assert!(flat_topk(std::slice::from_ref(&short), 3, &range, Some(&[u64::MAX])).is_err());
+        // Nothing at or above the cut, nothing after the padding.
+        assert!(flat_topk(std::slice::from_ref(&full), 3, &range, Some(&[9])).is_err());
+        assert!(flat_topk(std::slice::from_ref(&full), 3, &range, Some(&[10])).is_ok());
+        let gap = vec![hit(12, 3), Hit::NONE, hit(11, 4)];
+        assert!(flat_topk(&[gap], 3, &range, Some(&[10])).is_err());
+        // One cut per list.
+        assert!(flat_topk(&[full], 3, &range, Some(&[10, 10])).is_err());
+    }
 
     #[test]
     fn protocol_mismatch_names_both_versions() {

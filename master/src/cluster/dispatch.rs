@@ -40,6 +40,10 @@ struct Outgoing<'a> {
     /// Matches per query: 1 = best match (answers one hit per query); more
     /// = top-k (answers `k` slots per query, padded with `Hit::NONE`).
     k: usize,
+    /// Top-k only: per query, a cut above its whole-space top-k
+    /// ([`texsyn_engine::OwnedLevel::topk_cuts`]), so each range answers
+    /// only what can enter the merge.
+    cut: Option<&'a [u64]>,
     values: &'a [u8],
     masks: &'a [u8],
 }
@@ -79,12 +83,14 @@ impl ClusterSearch {
         batch: &QueryBatch,
         id: u64,
         k: usize,
+        cut: Option<&[u64]>,
     ) -> Result<Vec<Hit>> {
         let (values, masks) = batch.unpadded();
         let out = Outgoing {
             batch,
             id,
             k,
+            cut,
             values: &values,
             masks: &masks,
         };
@@ -200,6 +206,7 @@ impl ClusterSearch {
                     epoch: self.epoch,
                     bound_index,
                     bound_distance,
+                    topk_cut: out.cut.map_or_else(Vec::new, |c| c[q0..q1].to_vec()),
                     ..Default::default()
                 }
             })
@@ -219,6 +226,7 @@ impl ClusterSearch {
         &mut self,
         batch: &QueryBatch,
         k: usize,
+        cut: Option<&[u64]>,
         link: Option<&Link>,
     ) -> Result<Option<Vec<Hit>>> {
         let (Some(space), Some(level)) = (&self.master.space, &self.level) else {
@@ -233,10 +241,17 @@ impl ClusterSearch {
             self.level_prune.add(&prune);
             hits
         } else {
-            let lists =
-                self.engine
-                    .search_topk(space, range.clone(), batch, &level.data.params, k)?;
-            conn::flat_topk(&lists, k, &range).map_err(anyhow::Error::msg)?
+            let params = &level.data.params;
+            let lists = match cut {
+                Some(c) => {
+                    self.engine
+                        .search_topk_below(space, range.clone(), batch, params, k, c)?
+                }
+                None => self
+                    .engine
+                    .search_topk(space, range.clone(), batch, params, k)?,
+            };
+            conn::flat_topk(&lists, k, &range, cut).map_err(anyhow::Error::msg)?
         };
         self.master.stats.search_seconds += t.elapsed().as_secs_f64();
         self.master.stats.queries += batch.len() as u64;
@@ -282,7 +297,7 @@ impl ClusterSearch {
             expected.push(exp);
         }
         let mut parts: Vec<Vec<Hit>> = Vec::new();
-        parts.extend(self.search_master_share(out.batch, out.k, link.as_deref())?);
+        parts.extend(self.search_master_share(out.batch, out.k, out.cut, link.as_deref())?);
         let answers = block_on(self.rt(), async move {
             let mut out = Vec::with_capacity(handles.len());
             for h in handles {

@@ -353,7 +353,7 @@ impl SearchBackend for ClusterSearch {
         } else {
             batch.without_hints()
         };
-        self.search_batch(&batch, batch_id, 1)
+        self.search_batch(&batch, batch_id, 1, None)
     }
 
     fn search_topk(&mut self, batch: &QueryBatch, k: usize) -> Result<Vec<Vec<Hit>>> {
@@ -368,7 +368,12 @@ impl SearchBackend for ClusterSearch {
         let batch_id = self.number_batch(batch)?;
         let span = tracing::debug_span!("top-k batch", batch = batch_id, queries = batch.len(), k);
         let _enter = span.enter();
-        let flat = self.search_batch(&batch.without_hints(), batch_id, k)?;
+        // Each range answers only what can enter the merged top-k: the
+        // cut of the queries' coherence candidates, scored here from the
+        // planes (ARCHITECTURE §4.8).
+        let level = self.level.as_ref().context("search before load_level")?;
+        let cut = level.data.topk_cuts(batch, k);
+        let flat = self.search_batch(&batch.without_hints(), batch_id, k, Some(&cut))?;
         Ok(flat
             .chunks_exact(k)
             .map(|c| c.iter().copied().filter(|h| !h.is_none()).collect())

@@ -4,6 +4,8 @@
 //! worker holds one per loaded level, the cluster keeps one to rebuild vectors
 //! after a repartition, and the wire converts it to and from `LoadLevel`.
 
+use rayon::prelude::*;
+
 use crate::batch::QueryBatch;
 use crate::error::Result;
 use crate::kernel::{distance, Params};
@@ -11,6 +13,7 @@ use crate::layout::Geometry;
 use crate::merge::Hit;
 use crate::plane::{gather, reference_positions, OwnedPlane, Sample};
 use crate::positions::Positions;
+use crate::search::kth_cut;
 
 /// A level's sample planes, geometry, parameters and reference positions.
 #[derive(Debug, Clone)]
@@ -81,6 +84,27 @@ impl OwnedLevel {
             queries.set_bound(q, best);
             queries.set_candidates(q, Vec::new());
         }
+    }
+
+    /// Per query, a cut above every distance of its top-`k` over the whole
+    /// level: one more than the `k`-th smallest distance of its distinct
+    /// coherence candidates, scored from the planes, or `u64::MAX` when it
+    /// has fewer than `k`. How a master that holds no vectors lets each
+    /// worker search its range for only what can enter the merged top-k
+    /// ([`crate::Engine::search_topk_below`], ARCHITECTURE §4.8).
+    pub fn topk_cuts(&self, queries: &QueryBatch, k: usize) -> Vec<u64> {
+        let all = 0..self.total();
+        (0..queries.len())
+            .into_par_iter()
+            .map_init(
+                || Scorer::new(self),
+                |scorer, q| {
+                    kth_cut(queries.candidates(q), &all, k, |i| {
+                        scorer.distance(i, queries, q)
+                    })
+                },
+            )
+            .collect()
     }
 
     /// Bytes a plane-backed space of the whole level holds ([`Sample::plane_bytes`]).

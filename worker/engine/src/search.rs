@@ -476,6 +476,29 @@ impl Engine {
         self.topk_below(space, range, queries, params, k, worst)
     }
 
+    /// [`Engine::search_topk`] over one range of a space split between
+    /// searchers, with each query's cut computed over the whole space
+    /// ([`crate::OwnedLevel::topk_cuts`]): only matches below `cut[q]` are
+    /// answered, so a list may be shorter than `k` where the other ranges
+    /// hold the better matches. Merged over the ranges, the lists give the
+    /// whole space's top-k exactly, as long as each cut is above the whole
+    /// space's `k`-th distance (ARCHITECTURE §4.8).
+    pub fn search_topk_below(
+        &self,
+        space: &VectorSpace,
+        range: Range<u64>,
+        queries: &QueryBatch,
+        params: &Params,
+        k: usize,
+        cut: &[u64],
+    ) -> Result<Vec<Vec<Hit>>> {
+        self.check(space, &range, queries)?;
+        one_per_query(cut.len(), "top-k cuts", queries)?;
+        let own = self.topk_cut_from_candidates(space, &range, queries, params, k);
+        let worst = own.iter().zip(cut).map(|(&a, &b)| a.min(b)).collect();
+        self.topk_below(space, range, queries, params, k, worst)
+    }
+
     /// Per query, one more than the `k`-th smallest distance of its distinct
     /// candidates in `range`, or `u64::MAX` when it has fewer than `k`.
     fn topk_cut_from_candidates(
@@ -490,27 +513,14 @@ impl Engine {
         (0..queries.len())
             .into_par_iter()
             .map(|q| {
-                let mut c: Vec<u64> = queries
-                    .candidates(q)
-                    .iter()
-                    .copied()
-                    .filter(|c| range.contains(c))
-                    .collect();
-                c.sort_unstable();
-                c.dedup();
-                if !self.prune || k == 0 || c.len() < k {
+                if !self.prune {
                     return u64::MAX;
                 }
-                let mut d: Vec<u64> = c
-                    .iter()
-                    .filter_map(|&i| space.vector(i))
-                    .map(|v| distance(&layout, params, &v, queries.values(q), queries.mask(q)))
-                    .collect();
-                if d.len() < k {
-                    return u64::MAX;
-                }
-                let (_, kth, _) = d.select_nth_unstable(k - 1);
-                kth.saturating_add(1)
+                kth_cut(queries.candidates(q), range, k, |i| {
+                    space
+                        .vector(i)
+                        .map(|v| distance(&layout, params, &v, queries.values(q), queries.mask(q)))
+                })
             })
             .collect()
     }
@@ -530,13 +540,7 @@ impl Engine {
         slack: &[Slack],
     ) -> Result<Vec<Vec<Hit>>> {
         self.check(space, &range, queries)?;
-        if slack.len() != queries.len() {
-            return Err(EngineError::Parameter(format!(
-                "{} slacks for {} queries",
-                slack.len(),
-                queries.len()
-            )));
-        }
+        one_per_query(slack.len(), "slacks", queries)?;
         let start = self.start_from_candidates(space, &range, queries, params);
         let worst = start
             .iter()
@@ -612,6 +616,45 @@ impl Engine {
         }
         Ok(out)
     }
+}
+
+/// An error unless `len` (of the `what` given) is one per query.
+fn one_per_query(len: usize, what: &str, queries: &QueryBatch) -> Result<()> {
+    if len == queries.len() {
+        return Ok(());
+    }
+    Err(EngineError::Parameter(format!(
+        "{len} {what} for {} queries",
+        queries.len()
+    )))
+}
+
+/// One more than the `k`-th smallest distance of the distinct `candidates`
+/// in `range` that `distance` can score, or `u64::MAX` when fewer than `k`
+/// are: a cut above every distance of the top-k, since the candidates are
+/// `k` vectors at most that far.
+pub(crate) fn kth_cut(
+    candidates: &[u64],
+    range: &Range<u64>,
+    k: usize,
+    mut distance: impl FnMut(u64) -> Option<u64>,
+) -> u64 {
+    let mut c: Vec<u64> = candidates
+        .iter()
+        .copied()
+        .filter(|c| range.contains(c))
+        .collect();
+    c.sort_unstable();
+    c.dedup();
+    if k == 0 || c.len() < k {
+        return u64::MAX;
+    }
+    let mut d: Vec<u64> = c.into_iter().filter_map(&mut distance).collect();
+    if d.len() < k {
+        return u64::MAX;
+    }
+    let (_, kth, _) = d.select_nth_unstable(k - 1);
+    kth.saturating_add(1)
 }
 
 #[cfg(test)]

@@ -1,7 +1,7 @@
 //! The k-d tree's top-k (ARCHITECTURE §3.5) equals the unpruned scan: on
 //! random low-dimensional spaces with many ties, L1 and L2, weighted parts,
-//! sub-ranges (as a worker searches its part), bounds, coherence candidates
-//! and near-ties.
+//! sub-ranges (as a worker searches its part), bounds, coherence candidates,
+//! near-ties, and a space split between searchers under top-k cuts.
 
 use proptest::prelude::*;
 use texsyn_engine::{Engine, Layout, Metric, Params, QueryBatch, Slack, VectorSpace, Weights};
@@ -72,5 +72,35 @@ proptest! {
             let b = scan.search_near_ties(&space, range, &queries, &params, k, &slack).unwrap();
             prop_assert_eq!(a, b);
         }
+        // Split between two searchers under cuts above each query's k-th
+        // distance over the whole space (as a master sends them): each part
+        // answers only what is below its cut, and the merge is the whole
+        // space's top-k.
+        let whole = scan.search_topk(&space, 0..n as u64, &queries, &params, k).unwrap();
+        let cuts: Vec<u64> = whole
+            .iter()
+            .enumerate()
+            .map(|(q, l)| match q % 3 {
+                _ if l.len() < k => u64::MAX,
+                0 => l[k - 1].dist + 1,
+                1 => l[k - 1].dist + 1 + (seed >> 40) % 50,
+                _ => u64::MAX,
+            })
+            .collect();
+        let split = cut as u64 + 1000;
+        for engine in [&tree, &scan] {
+            let mut merged = vec![Vec::new(); queries.len()];
+            for part in [0..split, split..n as u64] {
+                let lists = engine
+                    .search_topk_below(&space, part.clone(), &queries, &params, k, &cuts)
+                    .unwrap();
+                for (q, l) in lists.iter().enumerate() {
+                    prop_assert!(l.iter().all(|h| h.dist < cuts[q] && part.contains(&h.index)));
+                    merged[q] = texsyn_engine::merge_topk(&merged[q], l, k);
+                }
+            }
+            prop_assert_eq!(&merged, &whole);
+        }
+        prop_assert!(tree.search_topk_below(&space, 0..10, &queries, &params, k, &cuts[1..]).is_err());
     }
 }

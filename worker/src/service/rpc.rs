@@ -472,6 +472,13 @@ async fn search_batch(
             "bounds are for exhaustive best-1 search; send none with top_k > 1 or on an LBG assignment",
         ));
     }
+    let cut = b.topk_cut;
+    if !cut.is_empty() && (k == 1 || cut.len() != count) {
+        return Err(invalid(format!(
+            "topk_cut has {} entries: send none, or one per query ({count}) with top_k > 1",
+            cut.len()
+        )));
+    }
     if a.lbg.is_some() && k > 1 {
         return Err(invalid(format!(
             "top_k {k} is not available on an LBG assignment; send top_k 0 or 1"
@@ -539,13 +546,27 @@ async fn search_batch(
                     prune = Some(stats);
                     hits
                 } else {
-                    let lists = engine.search_topk(space, range, &q, params, k)?;
-                    if lists.iter().any(|l| l.len() != per_query) {
+                    let lists = if cut.is_empty() {
+                        engine.search_topk(space, range, &q, params, k)?
+                    } else {
+                        engine.search_topk_below(space, range, &q, params, k, &cut)?
+                    };
+                    // Only a cut may end a list early; its slots are padded.
+                    if lists
+                        .iter()
+                        .any(|l| l.len() > per_query || (cut.is_empty() && l.len() != per_query))
+                    {
                         return Err(texsyn_engine::EngineError::Parameter(
                             "top-k lists of unequal length".into(),
                         ));
                     }
-                    lists.into_iter().flatten().collect()
+                    lists
+                        .into_iter()
+                        .flat_map(|l| {
+                            let pad = per_query - l.len();
+                            l.into_iter().chain(std::iter::repeat_n(Hit::NONE, pad))
+                        })
+                        .collect()
                 };
                 Ok((hits, prune, t.elapsed().as_secs_f64()))
             },
