@@ -373,7 +373,9 @@ impl SearchBackend for ClusterSearch {
         // planes (ARCHITECTURE §4.8).
         let level = self.level.as_ref().context("search before load_level")?;
         let cut = level.data.topk_cuts(batch, k);
-        let flat = self.search_batch(&batch.without_hints(), batch_id, k, Some(&cut))?;
+        // A batch without candidates has no cut: nothing to send.
+        let cut = cut.iter().any(|&c| c != u64::MAX).then_some(cut);
+        let flat = self.search_batch(&batch.without_hints(), batch_id, k, cut.as_deref())?;
         Ok(flat
             .chunks_exact(k)
             .map(|c| c.iter().copied().filter(|h| !h.is_none()).collect())
