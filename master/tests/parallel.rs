@@ -314,6 +314,19 @@ fn bad_input_is_refused_with_the_fix_named() {
     assert!(synth(&["--neighbourhood", "9"]).contains("reduced, half, 5 or 7"));
     assert!(synth(&["--jitter", "1.5"]).contains("[0, 1]"));
     assert!(synth(&["--tileable"]).contains("--tileable"));
+    let e = refused(&[
+        "synth",
+        s(&a),
+        "--correct-every-level",
+        "--size",
+        "64x64",
+        "-o",
+        s(&out),
+    ]);
+    assert!(
+        e.contains("--correct-every-level belongs to --method parallel"),
+        "{e}"
+    );
     let e = refused(&["morph", s(&a), s(&b), "--size", "64x64", "-o", s(&out)]);
     assert!(e.contains("--weight-maps") && e.contains("--ramp"), "{e}");
     grey(&d("w.png"), 32, 32, |_, _| 1);

@@ -237,6 +237,10 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
     ensure!(a.jitter.is_none(), "--jitter belongs to --method parallel");
     ensure!(a.start.is_none(), "--start belongs to --method parallel");
     ensure!(
+        !a.correct_every_level,
+        "--correct-every-level belongs to --method parallel"
+    );
+    ensure!(
         a.candidate_cache.is_none(),
         "--candidate-cache belongs to --method parallel"
     );
@@ -321,7 +325,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
     ];
     if let Some((flag, _)) = block_flags.iter().find(|(_, given)| *given) {
         anyhow::bail!(
-            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --seed, --coords and the run flags)"
+            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --seed, --coords and the run flags)"
         );
     }
     let args = ParallelArgs {
@@ -332,6 +336,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
             .unwrap_or_else(|| DEFAULT_JITTER_ARG.into()),
         start: a.start.clone().unwrap_or_else(|| "random".into()),
         seed: c.seed,
+        correct_every_level: a.correct_every_level,
         candidate_cache: a.candidate_cache.clone(),
         run: c.run.clone(),
     };

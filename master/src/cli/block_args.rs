@@ -178,6 +178,11 @@ pub struct SynthArgs {
     /// tiled (the paper's §4.1, prone to copying the sample).
     #[arg(long)]
     pub start: Option<String>,
+    /// --method parallel: correct every level, as the paper does (by default
+    /// a level whose neighbourhood spans more than half the sample's smaller
+    /// side is only jittered, so no offset copies the sample over the output).
+    #[arg(long)]
+    pub correct_every_level: bool,
     /// --method parallel: keep each level's k-coherence candidate sets in
     /// this directory, so a later run from the same sample skips their search.
     #[arg(long, value_name = "DIR")]

@@ -74,6 +74,13 @@ pub struct ParallelArgs {
     /// Random seed of the jitter.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Correct every level, as the paper does. By default a level whose
+    /// neighbourhood spans more than half the exemplar's smaller side is
+    /// only jittered: there the exemplar itself is the one neighbourhood that
+    /// matches everywhere, and correcting lets one offset copy it over the
+    /// whole output (5×5 and 7×7 made tiled copies).
+    #[arg(long)]
+    pub correct_every_level: bool,
     /// Keep each level's k-coherence candidate sets in this directory: a
     /// later run from the same exemplars skips their search (same output).
     #[arg(long, value_name = "DIR")]
@@ -139,6 +146,7 @@ impl ParallelArgs {
             jitter: parse_jitter(&self.jitter)?,
             start: Start::parse(&self.start)?,
             seed: self.seed,
+            every_level: self.correct_every_level,
             budget: self.run.budget(),
             colour,
             cache: open_cache(self.candidate_cache.as_deref())?,

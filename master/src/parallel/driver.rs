@@ -27,6 +27,10 @@ pub struct ParallelSettings {
     pub start: Start,
     /// Correction passes per level (each of 4 sub-passes).
     pub passes: usize,
+    /// Correct every level, as the paper does. Off by default: a level whose
+    /// neighbourhood spans more than [`MAX_SPAN`] of the exemplar is only
+    /// jittered ([`corrected`]).
+    pub every_level: bool,
     /// k of the k-coherence candidate sets.
     pub k: usize,
     pub seed: u64,
@@ -61,6 +65,7 @@ impl Default for ParallelSettings {
             jitter: DEFAULT_JITTER.to_vec(),
             start: Start::Random,
             passes: 2,
+            every_level: false,
             k: 4,
             seed: 1,
             budget: crate::budget::Budget::default(),
@@ -75,6 +80,29 @@ impl Default for ParallelSettings {
 /// copy of the exemplar, and light at the fine levels, whose corrections
 /// only refine. The paper's single value is `--jitter 0.4`.
 pub const DEFAULT_JITTER: [f64; 4] = [1.0, 0.8, 0.6, 0.4];
+
+/// Widest neighbourhood, as a share of the exemplar's smaller side, that a
+/// level is corrected with by default ([`corrected`]).
+pub const MAX_SPAN: f64 = 0.5;
+
+/// Whether the level of step `h` is corrected. A neighbourhood whose points
+/// span more than [`MAX_SPAN`] of the smallest exemplar side sees nearly the
+/// whole exemplar, and the one neighbourhood that then matches everywhere is
+/// the exemplar itself: correcting there lets one coherent offset take over
+/// the output (a 7×7 neighbourhood from the coarsest level made tiled copies,
+/// `copy_share` up to 1.0). Such a level keeps its start or its upsampled
+/// parent, jittered (§4.2), so the coarse layout stays random; the finest
+/// level is always corrected. `every_level` is the paper's choice (§4: every
+/// level corrected).
+pub fn corrected(points: &[Vec<[i32; 2]>], h: usize, smallest: usize, every_level: bool) -> bool {
+    let reach = points
+        .iter()
+        .flatten()
+        .map(|o| o[0].unsigned_abs().max(o[1].unsigned_abs()) as usize)
+        .max()
+        .unwrap_or(0);
+    every_level || h == 1 || (2 * reach * h) as f64 <= MAX_SPAN * smallest as f64
+}
 
 /// How the coarsest level's coordinates start.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -101,12 +129,17 @@ impl Start {
 /// Levels of a synthesis from `exemplars`: the coarsest step is the largest
 /// power of two up to a quarter of the smallest exemplar side.
 pub(super) fn level_count(exemplars: &[&ColorImage]) -> usize {
-    let smallest = exemplars
+    let smallest = smallest_side(exemplars);
+    (usize::BITS - (smallest / 4).max(1).leading_zeros()) as usize
+}
+
+/// The smallest side of any exemplar.
+fn smallest_side(exemplars: &[&ColorImage]) -> usize {
+    exemplars
         .iter()
         .map(|e| e.width.min(e.height))
         .min()
-        .unwrap_or(8);
-    (usize::BITS - (smallest / 4).max(1).leading_zeros()) as usize
+        .unwrap_or(8)
 }
 
 /// Exemplar j's jitter seed (exemplar 0 keeps `seed`, so a one-exemplar
@@ -245,15 +278,21 @@ pub(super) fn run_levels<L: Lattice>(
         let t_exemplars = t.elapsed().as_secs_f64();
         lattice.prepare(level, h, jitter_at(s, level));
         let t = std::time::Instant::now();
+        let passes = if corrected(&points, h, smallest_side(exemplars), s.every_level) {
+            s.passes
+        } else {
+            0
+        };
         progress.start(
             &format!("level {}/{levels}", level + 1),
-            (s.passes * L::SUB_PASSES) as u64,
+            (passes * L::SUB_PASSES) as u64,
             "sub-passes",
         );
-        lattice.correct(&ex, &points, s.passes, progress);
+        lattice.correct(&ex, &points, passes, progress);
         progress.finish();
         tracing::debug!(
             level,
+            passes,
             exemplar_levels_and_candidates = t_exemplars,
             correction = t.elapsed().as_secs_f64(),
             "level timings (s)"
@@ -288,4 +327,25 @@ pub fn blend(
             }
         });
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn levels_whose_neighbourhood_spans_over_half_the_exemplar_are_not_corrected() {
+        let seven = Neighbourhood::Full(7).points();
+        let reduced = Neighbourhood::Reduced.points();
+        // 7×7 reaches 3 steps each way: 6h against half of 128.
+        assert!(corrected(&seven, 8, 128, false));
+        assert!(!corrected(&seven, 16, 128, false));
+        assert!(corrected(&seven, 16, 128, true));
+        // Reduced reaches one step: 2h.
+        assert!(corrected(&reduced, 32, 128, false));
+        assert!(!corrected(&reduced, 64, 128, false));
+        // The finest level always is, however small the exemplar.
+        assert!(corrected(&seven, 1, 8, false));
+        assert!(!corrected(&seven, 2, 8, false));
+    }
 }

@@ -305,6 +305,10 @@ impl Default for SolidSettings {
             base: ParallelSettings {
                 neighbourhood: Neighbourhood::Half,
                 k: K,
+                // A solid cannot copy a 2-D exemplar, and its coarse levels
+                // are where the histogram matching sets its contrast:
+                // measured, only jittering them halved the faces' contrast.
+                every_level: true,
                 ..ParallelSettings::default()
             },
             histogram: HISTOGRAM,
