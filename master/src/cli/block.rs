@@ -241,6 +241,10 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
         "--correct-every-level belongs to --method parallel"
     );
     ensure!(
+        a.histogram.is_none(),
+        "--histogram belongs to --method parallel"
+    );
+    ensure!(
         a.candidate_cache.is_none(),
         "--candidate-cache belongs to --method parallel"
     );
@@ -325,7 +329,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
     ];
     if let Some((flag, _)) = block_flags.iter().find(|(_, given)| *given) {
         anyhow::bail!(
-            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --seed, --coords and the run flags)"
+            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --seed, --coords and the run flags)"
         );
     }
     let args = ParallelArgs {
@@ -337,6 +341,9 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         start: a.start.clone().unwrap_or_else(|| "random".into()),
         seed: c.seed,
         correct_every_level: a.correct_every_level,
+        histogram: a
+            .histogram
+            .unwrap_or(crate::parallel::driver::DEFAULT_HISTOGRAM),
         candidate_cache: a.candidate_cache.clone(),
         run: c.run.clone(),
     };

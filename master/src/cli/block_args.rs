@@ -179,10 +179,15 @@ pub struct SynthArgs {
     #[arg(long)]
     pub start: Option<String>,
     /// --method parallel: correct every level, as the paper does (by default
-    /// a level whose neighbourhood spans more than half the sample's smaller
-    /// side is only jittered, so no offset copies the sample over the output).
+    /// a level whose neighbourhood spans half the sample's smaller side or
+    /// more is only jittered, so no offset copies the sample over the output).
     #[arg(long)]
     pub correct_every_level: bool,
+    /// --method parallel: strength of the histogram matching of the blend
+    /// before every correction sub-pass, 0 to 1 (default 1; 0: the paper's
+    /// plain method, which loses thin features).
+    #[arg(long)]
+    pub histogram: Option<f32>,
     /// --method parallel: keep each level's k-coherence candidate sets in
     /// this directory, so a later run from the same sample skips their search.
     #[arg(long, value_name = "DIR")]

@@ -75,12 +75,18 @@ pub struct ParallelArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Correct every level, as the paper does. By default a level whose
-    /// neighbourhood spans more than half the exemplar's smaller side is
-    /// only jittered: there the exemplar itself is the one neighbourhood that
+    /// neighbourhood spans half the exemplar's smaller side or more is only
+    /// jittered: there the exemplar itself is the one neighbourhood that
     /// matches everywhere, and correcting lets one offset copy it over the
     /// whole output (5×5 and 7×7 made tiled copies).
     #[arg(long)]
     pub correct_every_level: bool,
+    /// Strength of the histogram matching of the blend before every
+    /// correction sub-pass, 0 to 1 (Kopf et al.; 1: full, the default;
+    /// 0: the paper's plain method, whose corrections favour flat regions
+    /// and lose thin features such as cracks).
+    #[arg(long, default_value_t = crate::parallel::driver::DEFAULT_HISTOGRAM)]
+    pub histogram: f32,
     /// Keep each level's k-coherence candidate sets in this directory: a
     /// later run from the same exemplars skips their search (same output).
     #[arg(long, value_name = "DIR")]
@@ -141,12 +147,18 @@ pub(super) fn parse_jitter(s: &str) -> Result<Vec<f64>> {
 
 impl ParallelArgs {
     fn settings(&self, colour: MorphColour) -> Result<ParallelSettings> {
+        let h = self.histogram;
+        ensure!(
+            h.is_finite() && (0.0..=1.0).contains(&h),
+            "--histogram {h} must be in [0, 1] (1: full matching, 0: the paper's plain method)"
+        );
         Ok(ParallelSettings {
             neighbourhood: parse_neighbourhood(&self.neighbourhood)?,
             jitter: parse_jitter(&self.jitter)?,
             start: Start::parse(&self.start)?,
             seed: self.seed,
             every_level: self.correct_every_level,
+            histogram: h,
             budget: self.run.budget(),
             colour,
             cache: open_cache(self.candidate_cache.as_deref())?,

@@ -191,6 +191,7 @@ impl TryFrom<&SolidArgs> for SolidJob {
             seed: a.seed,
             passes: a.passes,
             k: a.k,
+            histogram: a.histogram,
             budget: a.run.budget(),
             cache: super::parallel::open_cache(a.candidate_cache.as_deref())?,
             ..SolidSettings::default().base
@@ -214,10 +215,7 @@ impl TryFrom<&SolidArgs> for SolidJob {
         let job = SolidJob {
             views,
             size: parse_size3(&a.size)?,
-            settings: SolidSettings {
-                base,
-                histogram: a.histogram,
-            },
+            settings: SolidSettings { base },
             weights,
             slices: parse_slices(&a.slices)?,
             replays,

@@ -28,11 +28,15 @@ pub struct ParallelSettings {
     /// Correction passes per level (each of 4 sub-passes).
     pub passes: usize,
     /// Correct every level, as the paper does. Off by default: a level whose
-    /// neighbourhood spans more than [`MAX_SPAN`] of the exemplar is only
+    /// neighbourhood spans [`MAX_SPAN`] of the exemplar or more is only
     /// jittered ([`corrected`]).
     pub every_level: bool,
     /// k of the k-coherence candidate sets.
     pub k: usize,
+    /// Strength of the histogram matching of the blend before each
+    /// correction sub-pass, 0 to 1 ([`super::histogram`]; 0: the paper's
+    /// plain method).
+    pub histogram: f32,
     pub seed: u64,
     /// The memory the run may take: a larger output is refused before any work.
     pub budget: crate::budget::Budget,
@@ -67,6 +71,7 @@ impl Default for ParallelSettings {
             passes: 2,
             every_level: false,
             k: 4,
+            histogram: DEFAULT_HISTOGRAM,
             seed: 1,
             budget: crate::budget::Budget::default(),
             colour: MorphColour::default(),
@@ -81,13 +86,16 @@ impl Default for ParallelSettings {
 /// only refine. The paper's single value is `--jitter 0.4`.
 pub const DEFAULT_JITTER: [f64; 4] = [1.0, 0.8, 0.6, 0.4];
 
-/// Widest neighbourhood, as a share of the exemplar's smaller side, that a
-/// level is corrected with by default ([`corrected`]).
+/// Default strength of the histogram matching: full (ARCHITECTURE §10–11).
+pub const DEFAULT_HISTOGRAM: f32 = 1.0;
+
+/// The share of the exemplar's smaller side that a neighbourhood must span
+/// less than for its level to be corrected by default ([`corrected`]).
 pub const MAX_SPAN: f64 = 0.5;
 
 /// Whether the level of step `h` is corrected. A neighbourhood whose points
-/// span more than [`MAX_SPAN`] of the smallest exemplar side sees nearly the
-/// whole exemplar, and the one neighbourhood that then matches everywhere is
+/// span [`MAX_SPAN`] of the smallest exemplar side or more sees most of the
+/// exemplar, and the one neighbourhood that then matches everywhere is
 /// the exemplar itself: correcting there lets one coherent offset take over
 /// the output (a 7×7 neighbourhood from the coarsest level made tiled copies,
 /// `copy_share` up to 1.0). Such a level keeps its start or its upsampled
@@ -101,7 +109,7 @@ pub fn corrected(points: &[Vec<[i32; 2]>], h: usize, smallest: usize, every_leve
         .map(|o| o[0].unsigned_abs().max(o[1].unsigned_abs()) as usize)
         .max()
         .unwrap_or(0);
-    every_level || h == 1 || (2 * reach * h) as f64 <= MAX_SPAN * smallest as f64
+    every_level || h == 1 || ((2 * reach * h) as f64) < MAX_SPAN * smallest as f64
 }
 
 /// How the coarsest level's coordinates start.
@@ -341,9 +349,10 @@ mod tests {
         assert!(corrected(&seven, 8, 128, false));
         assert!(!corrected(&seven, 16, 128, false));
         assert!(corrected(&seven, 16, 128, true));
-        // Reduced reaches one step: 2h.
-        assert!(corrected(&reduced, 32, 128, false));
-        assert!(!corrected(&reduced, 64, 128, false));
+        // Reduced reaches one step: 2h, corrected below half the side only.
+        assert!(corrected(&reduced, 16, 128, false));
+        assert!(!corrected(&reduced, 32, 128, false));
+        assert!(corrected(&reduced, 32, 129, false));
         // The finest level always is, however small the exemplar.
         assert!(corrected(&seven, 1, 8, false));
         assert!(!corrected(&seven, 2, 8, false));

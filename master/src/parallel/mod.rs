@@ -11,6 +11,8 @@
 //! - [`appearance`]: the appearance space (5×5 windows, PCA);
 //! - [`candidates`]: k-coherence sets from the engine's top-k search;
 //! - [`cache`]: those sets kept on disk, so an exemplar is analysed once;
+//! - [`histogram`]: histogram matching of the blend (Kopf et al.), so
+//!   corrections keep the exemplar's contrast and thin features;
 //! - [`weights`]: weight maps of a morph;
 //! - [`synth`]: the plane: synthesis and morph (§3–4);
 //! - [`solid`]: the volume: solid textures from 2-D views (§5).
@@ -21,6 +23,7 @@ pub mod candidates;
 pub mod coords;
 pub mod driver;
 pub mod exemplar;
+pub mod histogram;
 pub mod neighbourhood;
 pub mod solid;
 pub mod synth;

@@ -69,7 +69,7 @@ impl SolidJob {
 
     /// Checks the job before anything is read.
     pub fn validate(&self) -> Result<()> {
-        let (h, passes) = (self.settings.histogram, self.settings.base.passes);
+        let (h, passes) = (self.settings.base.histogram, self.settings.base.passes);
         ensure!(
             h.is_finite() && (0.0..=1.0).contains(&h),
             "--histogram {h} must be in [0, 1] (1: full matching, 0: the paper's plain method)"
@@ -269,7 +269,7 @@ impl SolidJob {
             "jitter": s.base.jitter,
             "passes": s.base.passes,
             "k": s.base.k,
-            "histogram": s.histogram,
+            "histogram": s.base.histogram,
             "seed": s.base.seed,
             "levels": out.levels,
             "appearance_components": out.dims,

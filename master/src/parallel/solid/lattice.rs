@@ -7,12 +7,12 @@
 
 use rayon::prelude::*;
 
-use super::histogram::Matching;
 use super::weights::{downsample3, ViewWeights};
 use super::View;
 use crate::parallel::coords::{jitter_offset, random_pixel};
 use crate::parallel::driver::{exemplar_seed, Lattice, LevelExemplars};
 use crate::parallel::exemplar::ExemplarLevel;
+use crate::parallel::histogram::Matching;
 use crate::progress::Progress;
 
 /// The eight sub-passes, a 2×2×2 pattern of `(x, y, z)` parities (§5.3),

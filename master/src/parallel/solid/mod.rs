@@ -29,7 +29,6 @@ use crate::imaging::ColorImage;
 use crate::progress::Progress;
 use crate::search::SearchBackend;
 
-mod histogram;
 mod job;
 mod lattice;
 #[cfg(test)]
@@ -111,7 +110,7 @@ pub fn synthesize(
 ) -> Result<Solid> {
     let s = &settings.base;
     ensure!(
-        settings.histogram.is_finite() && settings.histogram >= 0.0,
+        s.histogram.is_finite() && s.histogram >= 0.0,
         "the histogram matching strength must be 0 or more"
     );
     ensure!(
@@ -240,7 +239,7 @@ pub fn synthesize(
         view_ex: &view_ex,
         size,
         seed: s.seed,
-        histogram: settings.histogram,
+        histogram: s.histogram,
         dims,
         full_weights,
         points3,
@@ -269,11 +268,7 @@ pub fn synthesize(
         levels,
         dims,
         explained_variance: pca.explained,
-        colour_matching: if materials == 1 {
-            settings.histogram
-        } else {
-            0.0
-        },
+        colour_matching: if materials == 1 { s.histogram } else { 0.0 },
     };
     let exemplars: Vec<ColorImage> = views.iter().map(|v| v.exemplar.clone()).collect();
     solid.colour = replay(&solid, &exemplars, 3)?.data;
@@ -283,11 +278,9 @@ pub fn synthesize(
 /// Settings of a solid synthesis.
 #[derive(Clone, Debug)]
 pub struct SolidSettings {
-    /// Neighbourhood (half, 5 or 7), jitter, passes, k and seed.
+    /// Neighbourhood (half, 5 or 7), jitter, passes, k, the histogram
+    /// matching's strength and seed.
     pub base: ParallelSettings,
-    /// Strength of the histogram matching, 0 to 1: 1 matches fully, 0 is
-    /// the paper's plain method.
-    pub histogram: f32,
 }
 
 /// Default k of a solid's k-coherence sets: 2, as Lefebvre and Hoppe use
@@ -297,7 +290,7 @@ pub struct SolidSettings {
 pub const K: usize = 2;
 
 /// Default strength of the histogram matching: full (ARCHITECTURE §11).
-pub const HISTOGRAM: f32 = 1.0;
+pub const HISTOGRAM: f32 = crate::parallel::driver::DEFAULT_HISTOGRAM;
 
 impl Default for SolidSettings {
     fn default() -> Self {
@@ -309,9 +302,9 @@ impl Default for SolidSettings {
                 // are where the histogram matching sets its contrast:
                 // measured, only jittering them halved the faces' contrast.
                 every_level: true,
+                histogram: HISTOGRAM,
                 ..ParallelSettings::default()
             },
-            histogram: HISTOGRAM,
         }
     }
 }
@@ -346,7 +339,13 @@ pub fn replay(s: &Solid, maps: &[ColorImage], channels: usize) -> Result<Volume>
                     target[usize::from(p[ch])] += w;
                 }
             }
-            histogram::match_bytes(&mut data, channels, ch, &target, s.colour_matching);
+            crate::parallel::histogram::match_bytes(
+                &mut data,
+                channels,
+                ch,
+                &target,
+                s.colour_matching,
+            );
         }
     }
     Volume::new(s.size, channels, data)

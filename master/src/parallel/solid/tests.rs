@@ -137,10 +137,8 @@ fn walnut_solid(n: usize, histogram: f32) -> (ColorImage, Solid) {
             material: 0,
         })
         .collect();
-    let settings = SolidSettings {
-        histogram,
-        ..SolidSettings::default()
-    };
+    let mut settings = SolidSettings::default();
+    settings.base.histogram = histogram;
     let mut b = crate::search::LocalSearch::new(texsyn_engine::Engine::default());
     let s = synthesize(
         &views,

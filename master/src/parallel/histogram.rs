@@ -28,7 +28,7 @@ const QUANTILES: usize = 257;
 const CHUNK: usize = 8192;
 
 /// The target distributions of every appearance component, as quantiles.
-pub(super) struct Matching {
+pub struct Matching {
     dims: usize,
     /// Per component, its quantiles at `i / (QUANTILES − 1)`.
     quantiles: Vec<Vec<f32>>,
@@ -38,7 +38,7 @@ impl Matching {
     /// The target of `dims` components: the values of `sources`, each an
     /// exemplar level's appearance vectors (`dims` per pixel) with the weight
     /// its views have in the volume.
-    pub(super) fn new(dims: usize, sources: &[(&[f32], f64)]) -> Self {
+    pub fn new(dims: usize, sources: &[(&[f32], f64)]) -> Self {
         let quantiles = (0..dims)
             .into_par_iter()
             .map(|c| {
@@ -59,7 +59,7 @@ impl Matching {
 
     /// `out` = `raw` with each component mapped so that its histogram over
     /// the volume is the target's, moved `strength` (0 to 1) of the way.
-    pub(super) fn apply(&self, raw: &[f32], strength: f32, out: &mut Vec<f32>) {
+    pub fn apply(&self, raw: &[f32], strength: f32, out: &mut Vec<f32>) {
         let dims = self.dims;
         out.clear();
         out.resize(raw.len(), 0.0);
