@@ -640,6 +640,18 @@ mod tests {
         peak / (c.width * c.height) as f64 * f64::from(s * s)
     }
 
+    /// A `side`² synthesis of `ex` with the 7×7 neighbourhood and the
+    /// defaults, changed by `tweak`.
+    fn seven(ex: &ColorImage, side: usize, tweak: impl FnOnce(&mut ParallelSettings)) -> Synthesis {
+        let mut s = ParallelSettings {
+            neighbourhood: Neighbourhood::Full(7),
+            ..ParallelSettings::default()
+        };
+        tweak(&mut s);
+        let mut b = crate::search::LocalSearch::new(texsyn_engine::Engine::default());
+        synthesize(ex, side, side, &s, &mut b, &crate::progress::Silent).unwrap()
+    }
+
     /// The largest share of pixels at one offset (coordinate − position,
     /// modulo the `dims` exemplar): 1.0 for a tiled copy.
     fn largest_offset_share(c: &CoordMap, dims: (usize, usize)) -> f64 {
@@ -664,13 +676,7 @@ mod tests {
     fn a_wide_neighbourhood_does_not_copy_its_exemplar() {
         let ex = texture("walnut_color_128.png");
         let run = |every_level| {
-            let s = ParallelSettings {
-                neighbourhood: Neighbourhood::Full(7),
-                every_level,
-                ..ParallelSettings::default()
-            };
-            let mut b = crate::search::LocalSearch::new(texsyn_engine::Engine::default());
-            let out = synthesize(&ex, 256, 256, &s, &mut b, &crate::progress::Silent).unwrap();
+            let out = seven(&ex, 256, |s| s.every_level = every_level);
             largest_offset_share(&out.coords[0], (ex.width, ex.height))
         };
         let ours = run(false);
@@ -691,13 +697,7 @@ mod tests {
     fn histogram_matching_keeps_thin_features() {
         let ex = texture("cracked_color_144.png");
         let run = |histogram| {
-            let s = ParallelSettings {
-                neighbourhood: Neighbourhood::Full(7),
-                histogram,
-                ..ParallelSettings::default()
-            };
-            let mut b = crate::search::LocalSearch::new(texsyn_engine::Engine::default());
-            let out = synthesize(&ex, 288, 288, &s, &mut b, &crate::progress::Silent).unwrap();
+            let out = seven(&ex, 288, |s| s.histogram = histogram);
             crate::compare::compare(&ex, &out.image).unwrap().s_l
         };
         let matched = run(1.0);
