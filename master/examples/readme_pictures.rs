@@ -199,6 +199,7 @@ fn main() -> Result<()> {
             side,
             &ParallelSettings {
                 neighbourhood: Neighbourhood::Full(7),
+                passes: parallel::driver::default_passes(Neighbourhood::Full(7)),
                 ..ParallelSettings::default()
             },
             &mut backend,

@@ -314,6 +314,7 @@ fn bad_input_is_refused_with_the_fix_named() {
     assert!(synth(&["--neighbourhood", "9"]).contains("reduced, half, 5 or 7"));
     assert!(synth(&["--jitter", "1.5"]).contains("[0, 1]"));
     assert!(synth(&["--tileable"]).contains("--tileable"));
+    assert!(synth(&["--passes", "0"]).contains("--passes 0 must be in 1..=64"));
     let e = refused(&[
         "synth",
         s(&a),

@@ -244,6 +244,7 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
         a.histogram.is_none(),
         "--histogram belongs to --method parallel"
     );
+    ensure!(a.passes.is_none(), "--passes belongs to --method parallel");
     ensure!(
         a.candidate_cache.is_none(),
         "--candidate-cache belongs to --method parallel"
@@ -329,7 +330,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
     ];
     if let Some((flag, _)) = block_flags.iter().find(|(_, given)| *given) {
         anyhow::bail!(
-            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --seed, --coords and the run flags)"
+            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --seed, --coords and the run flags)"
         );
     }
     let args = ParallelArgs {
@@ -341,6 +342,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         start: a.start.clone().unwrap_or_else(|| "random".into()),
         seed: c.seed,
         correct_every_level: a.correct_every_level,
+        passes: a.passes,
         histogram: a
             .histogram
             .unwrap_or(crate::parallel::driver::DEFAULT_HISTOGRAM),

@@ -183,6 +183,10 @@ pub struct SynthArgs {
     /// more is only jittered, so no offset copies the sample over the output).
     #[arg(long)]
     pub correct_every_level: bool,
+    /// --method parallel: correction passes per level (1 to 64; default 2,
+    /// the paper's, and 3 for --neighbourhood 5 and 7).
+    #[arg(long)]
+    pub passes: Option<usize>,
     /// --method parallel: strength of the histogram matching of the blend
     /// before every correction sub-pass, 0 to 1 (default 1; 0: the paper's
     /// plain method, which loses thin features).

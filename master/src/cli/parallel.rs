@@ -74,6 +74,10 @@ pub struct ParallelArgs {
     /// Random seed of the jitter.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Correction passes per level, each of four sub-passes (1 to 64;
+    /// default 2, the paper's, and 3 for the 5 and 7 neighbourhoods).
+    #[arg(long)]
+    pub passes: Option<usize>,
     /// Correct every level, as the paper does. By default a level whose
     /// neighbourhood spans half the exemplar's smaller side or more is only
     /// jittered: there the exemplar itself is the one neighbourhood that
@@ -152,8 +156,17 @@ impl ParallelArgs {
             h.is_finite() && (0.0..=1.0).contains(&h),
             "--histogram {h} must be in [0, 1] (1: full matching, 0: the paper's plain method)"
         );
+        let neighbourhood = parse_neighbourhood(&self.neighbourhood)?;
+        let passes = self
+            .passes
+            .unwrap_or(crate::parallel::driver::default_passes(neighbourhood));
+        ensure!(
+            (1..=64).contains(&passes),
+            "--passes {passes} must be in 1..=64"
+        );
         Ok(ParallelSettings {
-            neighbourhood: parse_neighbourhood(&self.neighbourhood)?,
+            neighbourhood,
+            passes,
             jitter: parse_jitter(&self.jitter)?,
             start: Start::parse(&self.start)?,
             seed: self.seed,
