@@ -3,7 +3,9 @@
 //! with `--report`; the table gives its time, speed-up and efficiency against
 //! the first configuration of its size, whether its output is the same bytes,
 //! and where the finest level's time went (search, the share of the search
-//! threads' time left idle, and the serial steps between searches).
+//! threads' time left idle, the keyed sweeps' wall time before and inside
+//! their parallel sections with the thread time lost joining them and
+//! waiting for their last part, and the serial steps between searches).
 
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
@@ -91,8 +93,21 @@ fn finest(report: &Value) -> String {
     let idle = l0["search_idle_share"]
         .as_f64()
         .map_or("-".into(), |x| format!("{:.0}%", 100.0 * x));
+    let w = &l0["sweeps"];
+    let sweeps = if w.is_object() {
+        let g = |k: &str| w[k].as_f64().unwrap_or(0.0);
+        format!(
+            "{:.2} s | {:.2} s | {:.1} | {:.1}",
+            g("prep_seconds"),
+            g("wall_seconds"),
+            g("lag_thread_seconds"),
+            g("tail_thread_seconds")
+        )
+    } else {
+        "- | - | - | -".into()
+    };
     format!(
-        "{:.2} s | {idle} | {:.2} s | {:.2} s | {:.2} s | {}",
+        "{:.2} s | {idle} | {sweeps} | {:.2} s | {:.2} s | {:.2} s | {}",
         f("search_seconds"),
         f("choose_seconds"),
         f("query_seconds"),
@@ -156,8 +171,8 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
         a.sample.display(),
         a.size
     );
-    println!("| run | size | threads | time | speed-up | efficiency | of local | identical | level 0 search | idle | choose | queries | copy | batches |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| run | size | threads | time | speed-up | efficiency | of local | identical | level 0 search | idle | before sweeps | in sweeps | lag (thread-s) | tail (thread-s) | choose | queries | copy | batches |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for r in &runs {
         let base = runs
             .iter()

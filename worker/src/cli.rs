@@ -104,6 +104,11 @@ pub struct ServeArgs {
     /// Kernel: auto, scalar, avx2, avx512.
     #[arg(long, default_value = "auto")]
     pub kernel: String,
+    /// Microseconds the search threads spin for more work after each search
+    /// before they sleep (0: sleep at once); answers are the same either way.
+    #[arg(long, value_name = "US", default_value_t = texsyn_engine::search::DEFAULT_SPIN.as_micros() as u64,
+          value_parser = clap::value_parser!(u64).range(0..=1_000_000))]
+    pub spin_us: u64,
     /// How a range's vectors are held: dense (built once, fastest), planes
     /// (gathered from the sample as they are scanned: about one byte per
     /// sample pixel) or auto (dense while they fit in 1 GiB and half of --max-memory).
@@ -203,6 +208,7 @@ impl TryFrom<ServeArgs> for WorkerConfig {
             max_message,
             idle_timeout: (a.idle_timeout > 0).then(|| Duration::from_secs(a.idle_timeout)),
             kernel: Kernel::from_name(&a.kernel)?,
+            spin: Duration::from_micros(a.spin_us),
             storage: Storage::from_name(&a.vector_store)?,
             wrong_answers: if a.fault_wrong_answers {
                 WrongAnswers::Always

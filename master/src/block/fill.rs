@@ -43,6 +43,9 @@ pub(super) struct LevelStats {
     /// Thread time of this process's engine inside those searches (0 when the
     /// search ran elsewhere).
     pub search_busy_seconds: f64,
+    /// This process's engine's figures over those searches (all zero when
+    /// the search ran elsewhere).
+    pub profile: texsyn_engine::Profile,
     /// Picking each batch's blocks from the queue.
     pub choose_seconds: f64,
     /// Building the batches' query vectors and candidates.
@@ -192,7 +195,7 @@ pub(super) fn fill_level(
         }
         let chosen = &batcher.chosen;
         stats.query_seconds += t.elapsed().as_secs_f64();
-        let (t, busy) = (Instant::now(), texsyn_engine::busy_nanos());
+        let (t, before) = (Instant::now(), texsyn_engine::Profile::now());
         let lists = match &control {
             Some(r) => {
                 let slack: Vec<Slack> =
@@ -206,7 +209,9 @@ pub(super) fn fill_level(
                 .collect(),
         };
         stats.search_seconds += t.elapsed().as_secs_f64();
-        stats.search_busy_seconds += (texsyn_engine::busy_nanos() - busy) as f64 * 1e-9;
+        let spent = texsyn_engine::Profile::now().since(&before);
+        stats.search_busy_seconds += spent.busy as f64 * 1e-9;
+        stats.profile.add(&spent);
         let t = Instant::now();
         ensure!(
             lists.len() == chosen.len(),
@@ -216,6 +221,15 @@ pub(super) fn fill_level(
         );
         stats.queries += chosen.len() as u64;
         stats.batches += 1;
+        // The pixels the copies will define, for re-keying their neighbours.
+        let newly: Vec<Vec<(isize, isize)>> = if ctx.scanline {
+            Vec::new()
+        } else {
+            chosen
+                .iter()
+                .map(|&blk| undefined_in(canvas, &grid, blk))
+                .collect()
+        };
         for (&blk, hits) in chosen.iter().zip(&lists) {
             // The seam filter's bands of the picked reference, kept for its
             // stitch (copying the block leaves the bands outside it as they are).
@@ -293,7 +307,7 @@ pub(super) fn fill_level(
             queue.remove(blk);
         }
         if !ctx.scanline {
-            rekey(&mut queue, canvas, &grid, chosen, n, rekey_radius);
+            rekey(&mut queue, canvas, &grid, chosen, &newly, n, rekey_radius);
         }
         stats.copy_seconds += t.elapsed().as_secs_f64();
         progress.advance(chosen.len() as u64);
@@ -597,17 +611,47 @@ fn stitch_block(canvas: &mut Canvas, ctx: &LevelContext, sides: Vec<Side>, band:
     }
 }
 
-/// Re-keys the queued blocks within `radius` blocks of the copied ones.
+/// The undefined pixels of block `blk`.
+fn undefined_in(canvas: &Canvas, grid: &Grid, blk: u32) -> Vec<(isize, isize)> {
+    let (bx, by) = grid.xy(blk);
+    let b = grid.b;
+    (by * b..(by * b + b).min(grid.h))
+        .flat_map(|y| (bx * b..(bx * b + b).min(grid.w)).map(move |x| (x, y)))
+        .filter(|&(x, y)| !canvas.defined[y * grid.w + x])
+        .map(|(x, y)| (x as isize, y as isize))
+        .collect()
+}
+
+/// Re-keys the queued blocks within `radius` blocks of the `copied` ones
+/// (Stahlhut §4: a copy changes its neighbours' undefined counts): each key
+/// drops by the pixels `newly` defined inside its window, which equals
+/// recounting the window. Where a wrapped canvas is narrower than a window or
+/// than the block neighbourhood (a window would meet a pixel twice), the
+/// windows are recounted.
 fn rekey(
     queue: &mut BlockQueue,
     canvas: &Canvas,
     grid: &Grid,
     copied: &[u32],
+    newly: &[Vec<(isize, isize)>],
     n: usize,
     radius: isize,
 ) {
     let (bw, bh) = (grid.bw as isize, grid.bh as isize);
-    for &blk in copied {
+    let (w, h) = (canvas.width as isize, canvas.height as isize);
+    let r = (n / 2) as isize;
+    let span = 2 * radius + 1;
+    let recount = canvas.wrap && (w < n as isize || h < n as isize || bw < span || bh < span);
+    // Whether coordinate `p` lies within `r` of `c` on an axis of `size`.
+    let near = |p: isize, c: isize, size: isize| {
+        if canvas.wrap {
+            let d = (p - c).rem_euclid(size);
+            d <= r || d >= size - r
+        } else {
+            (p - c).abs() <= r
+        }
+    };
+    for (&blk, px) in copied.iter().zip(newly) {
         let (bx, by) = grid.xy(blk);
         let (bx, by) = (bx as isize, by as isize);
         for dy in -radius..=radius {
@@ -620,9 +664,71 @@ fn rekey(
                     continue;
                 }
                 let nb = (ny as usize * grid.bw + nx as usize) as u32;
-                if queue.contains(nb) {
-                    let (cx, cy) = grid.centre(nb);
-                    queue.set(nb, canvas.undefined_in_window(cx, cy, n));
+                let Some(key) = queue.key(nb) else { continue };
+                let (cx, cy) = grid.centre(nb);
+                let fresh = if recount {
+                    canvas.undefined_in_window(cx, cy, n)
+                } else {
+                    let gone = px
+                        .iter()
+                        .filter(|&&(x, y)| near(x, cx, w) && near(y, cy, h))
+                        .count() as u32;
+                    if gone == 0 {
+                        continue;
+                    }
+                    key.checked_sub(gone)
+                        .unwrap_or_else(|| canvas.undefined_in_window(cx, cy, n))
+                };
+                queue.set(nb, fresh);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Lowering the neighbours' keys by the pixels a batch defines gives
+        /// the keys of recounting every window, on plain and wrapped canvases
+        /// of any size, with part of the canvas known beforehand.
+        #[test]
+        fn rekeying_by_the_copied_pixels_equals_recounting(
+            (w, h) in (1usize..48, 1usize..48),
+            wrap in any::<bool>(),
+            (b, n) in prop_oneof![Just((5usize, 11usize)), Just((3, 7)), Just((4, 9)), Just((2, 5))],
+            known in proptest::collection::vec(any::<bool>(), 48 * 48),
+            picks in proptest::collection::vec(any::<proptest::sample::Index>(), 1..6),
+        ) {
+            let mut canvas = Canvas::new(w, h, wrap);
+            for (d, &k) in canvas.defined.iter_mut().zip(&known) {
+                *d = k;
+            }
+            let grid = Grid::new(&canvas, b);
+            let mut queue = initial_queue(&canvas, &grid, n, false);
+            let radius = ((n / 2 + b / 2) / b + 1) as isize;
+            let queued: Vec<u32> = (0..(grid.bw * grid.bh) as u32).filter(|&k| queue.contains(k)).collect();
+            prop_assume!(!queued.is_empty());
+            let mut copied: Vec<u32> = picks.iter().map(|i| queued[i.index(queued.len())]).collect();
+            copied.sort_unstable();
+            copied.dedup();
+            let newly: Vec<Vec<(isize, isize)>> =
+                copied.iter().map(|&blk| undefined_in(&canvas, &grid, blk)).collect();
+            for px in &newly {
+                for &(x, y) in px {
+                    canvas.defined[y as usize * w + x as usize] = true;
+                }
+            }
+            for &blk in &copied {
+                queue.remove(blk);
+            }
+            rekey(&mut queue, &canvas, &grid, &copied, &newly, n, radius);
+            for blk in 0..(grid.bw * grid.bh) as u32 {
+                if let Some(key) = queue.key(blk) {
+                    let (cx, cy) = grid.centre(blk);
+                    prop_assert_eq!(key, canvas.undefined_in_window(cx, cy, n), "block {}", blk);
                 }
             }
         }

@@ -12,7 +12,7 @@ use super::canvas::{self, Canvas};
 use super::fill::{fill_level, LevelContext};
 use super::neighbourhood::colour_vectors;
 use super::plan::Plan;
-use super::{LevelReport, Progress};
+use super::{LevelReport, Progress, SweepReport};
 use crate::imaging::Gray;
 use crate::pyramid;
 use crate::search::{LevelData, SearchBackend};
@@ -114,11 +114,17 @@ pub(super) fn run_level(
         "level time"
     );
     progress.note(&format!(
-        "level {l}: {} queries in {} batches; search {:.3} s{} on {threads} threads, choose {:.3} s, queries {:.3} s, copy {:.3} s",
+        "level {l}: {} queries in {} batches; search {:.3} s{} on {threads} threads{}, choose {:.3} s, queries {:.3} s, copy {:.3} s",
         stats.queries,
         stats.batches,
         stats.search_seconds,
         busy.map(|b| format!(" ({:.0}% idle)", 100.0 * (1.0 - b / (threads as f64 * stats.search_seconds).max(1e-12)).max(0.0)))
+            .unwrap_or_default(),
+        SweepReport::of(&stats.profile)
+            .map(|w| format!(
+                " (before the sweeps {:.3} s; in them {:.3} s, with {:.3} thread-s idle before a thread's first part and {:.3} after its last)",
+                w.prep_seconds, w.wall_seconds, w.lag_thread_seconds, w.tail_thread_seconds
+            ))
             .unwrap_or_default(),
         stats.choose_seconds,
         stats.query_seconds,
@@ -148,6 +154,7 @@ pub(super) fn run_level(
                 0.0
             }
         }),
+        sweeps: SweepReport::of(&stats.profile),
         prune,
         pairs_skipped: prune.map(|p| p.pairs_skipped()),
         components_skipped: prune.map(|p| p.components_skipped()),

@@ -67,6 +67,9 @@ pub struct LevelReport {
     /// workers only.
     pub search_busy_seconds: Option<f64>,
     pub search_idle_share: Option<f64>,
+    /// Inside this process's searches: how the keyed sweeps spent their wall
+    /// time. `None` when no sweep ran here.
+    pub sweeps: Option<SweepReport>,
     /// What pruning saved (ARCHITECTURE §3.5), where the backend counts it:
     /// pairs scored and abandoned, chunks of components computed.
     pub prune: Option<texsyn_engine::PruneStats>,
@@ -74,6 +77,31 @@ pub struct LevelReport {
     pub pairs_skipped: Option<f64>,
     /// Share of the component work a full scan does that was skipped.
     pub components_skipped: Option<f64>,
+}
+
+/// The keyed sweeps of a level on this process's search threads: the wall
+/// time before them (each query's start from its candidates and its seed),
+/// inside their parallel sections, and the thread time those sections left
+/// idle before a thread's first part (lag) and after its last (tail).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct SweepReport {
+    pub sweeps: u64,
+    pub prep_seconds: f64,
+    pub wall_seconds: f64,
+    pub lag_thread_seconds: f64,
+    pub tail_thread_seconds: f64,
+}
+
+impl SweepReport {
+    pub fn of(p: &texsyn_engine::Profile) -> Option<Self> {
+        (p.sweeps > 0).then_some(Self {
+            sweeps: p.sweeps,
+            prep_seconds: p.prep as f64 * 1e-9,
+            wall_seconds: p.sweep_wall as f64 * 1e-9,
+            lag_thread_seconds: p.sweep_lag as f64 * 1e-9,
+            tail_thread_seconds: p.sweep_tail as f64 * 1e-9,
+        })
+    }
 }
 
 /// The machine-readable run report.

@@ -43,6 +43,12 @@ impl BlockQueue {
         self.key[block as usize] != ABSENT
     }
 
+    /// The key of `block`, if queued.
+    pub fn key(&self, block: u32) -> Option<u32> {
+        let k = self.key[block as usize];
+        (k != ABSENT).then_some(k)
+    }
+
     /// Inserts `block` with `key`, or moves it to `key` if queued.
     pub fn set(&mut self, block: u32, key: u32) {
         let key = key.min(self.buckets.len() as u32 - 1);

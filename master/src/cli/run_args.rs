@@ -40,6 +40,12 @@ pub struct RunArgs {
     /// 1 GiB and half the memory left, planes beyond). Same output either way.
     #[arg(long, value_name = "STORE", default_value = "auto")]
     pub vector_store: String,
+    /// Microseconds the search threads spin for more work after each search
+    /// before they sleep (0: sleep at once). Spinning spares the next search
+    /// their wake-up; the output is the same bytes either way.
+    #[arg(long, value_name = "US", default_value_t = texsyn_engine::search::DEFAULT_SPIN.as_micros() as u64,
+          value_parser = clap::value_parser!(u64).range(0..=1_000_000))]
+    pub spin_us: u64,
     /// No progress bars.
     #[arg(long, short)]
     pub quiet: bool,
@@ -63,6 +69,7 @@ impl RunArgs {
     pub fn options(&self, seed: u64, largest_sample: usize) -> Result<SearchOptions> {
         let plan: Plan = self.search.parse()?;
         Ok(SearchOptions {
+            spin: std::time::Duration::from_micros(self.spin_us),
             kernel: self.kernel.clone(),
             vector_store: self.vector_store.clone(),
             max_memory: self.budget().cap,

@@ -29,6 +29,8 @@ pub struct SearchOptions {
     /// than such a level can have seeds are refused now (0: not known yet,
     /// not checked here).
     pub largest_sample: usize,
+    /// How long the search threads spin for more work after each search.
+    pub spin: std::time::Duration,
     /// The workers, when the run uses a cluster.
     pub cluster: Option<ClusterSetup>,
 }
@@ -44,7 +46,7 @@ pub struct OpenSearch {
 
 /// Opens the search `o` describes.
 pub fn open(o: SearchOptions) -> Result<OpenSearch> {
-    let engine = Engine::with_kernel_name(&o.kernel)?;
+    let engine = Engine::with_kernel_name(&o.kernel)?.with_spin(o.spin);
     let lbg = LbgSearch::new(engine, o.lbg_probes, o.lbg_threshold, o.seed)?;
     if o.largest_sample > 0 {
         lbg.check_vectors(o.largest_sample)?;

@@ -19,8 +19,10 @@ pub mod link;
 pub mod merge;
 pub mod plane;
 pub mod positions;
+pub mod profile;
 pub mod search;
 pub mod space;
+pub mod spin;
 mod window;
 
 pub use batch::QueryBatch;
@@ -36,5 +38,6 @@ pub use merge::{
 };
 pub use plane::{OwnedPlane, Plane, Sample};
 pub use positions::Positions;
-pub use search::{busy_nanos, Engine};
+pub use profile::{busy_nanos, Profile};
+pub use search::Engine;
 pub use space::{Storage, VectorSpace};

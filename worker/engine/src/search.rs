@@ -14,8 +14,7 @@
 
 use std::borrow::Cow;
 use std::ops::Range;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Instant;
+use std::time::Duration;
 
 use rayon::prelude::*;
 
@@ -25,39 +24,14 @@ use crate::kdtree::KdTree;
 use crate::kernel::{distance, Kernel, Params, PruneStats, Scan, Sink};
 use crate::link::Link;
 use crate::merge::{merge_best, merge_topk, regroup, Hit, Slack};
+use crate::profile::Timer;
 use crate::space::VectorSpace;
+use crate::spin::Searching;
 use crate::window::Sweep;
 
 /// Fewest queries in a top-k batch for which the k-d tree is used (and
 /// built, on first use).
 const TREE_MIN_QUERIES: usize = 64;
-
-/// Thread time spent in search tasks by this process, in nanoseconds.
-static BUSY_NANOS: AtomicU64 = AtomicU64::new(0);
-
-/// Thread time this process has spent in search tasks so far (all searches,
-/// all threads), in nanoseconds. The difference over a search, set against
-/// its wall time × threads, is how long the threads sat idle: waiting for the
-/// slowest part, or outside the parallel section.
-pub fn busy_nanos() -> u64 {
-    BUSY_NANOS.load(Ordering::Relaxed)
-}
-
-/// Adds the time from its start to its drop to [`busy_nanos`].
-pub(crate) struct BusyTimer(Instant);
-
-impl BusyTimer {
-    pub(crate) fn start() -> Self {
-        Self(Instant::now())
-    }
-}
-
-impl Drop for BusyTimer {
-    fn drop(&mut self) {
-        let ns = u64::try_from(self.0.elapsed().as_nanos()).unwrap_or(u64::MAX);
-        BUSY_NANOS.fetch_add(ns, Ordering::Relaxed);
-    }
-}
 
 /// Per query the best (distance, index) so far, started from the query's
 /// bound. Comparisons are on the pair, so a vector that ties the bound with a
@@ -194,7 +168,14 @@ pub struct Engine {
     /// Prune (candidates and partial distance elimination); off, every
     /// component of every vector is scored, with the same answers.
     prune: bool,
+    /// How long the pool's threads spin for more work after a search
+    /// ([`crate::spin`]); zero lets them sleep at once.
+    spin: Duration,
 }
+
+/// The spin time `texsyn` and `texsyn-worker` give their engines (a library
+/// engine starts with none: [`Engine::with_spin`]).
+pub const DEFAULT_SPIN: Duration = Duration::from_micros(500);
 
 impl Default for Engine {
     fn default() -> Self {
@@ -208,6 +189,7 @@ impl Engine {
             kernel,
             min_chunk: 2048,
             prune: true,
+            spin: Duration::ZERO,
         }
     }
 
@@ -226,6 +208,14 @@ impl Engine {
     /// and tests; the answers are the same.
     pub fn with_pruning(mut self, prune: bool) -> Self {
         self.prune = prune;
+        self
+    }
+
+    /// Sets how long the pool's threads spin for more work after each search
+    /// instead of sleeping ([`crate::spin`]); zero turns spinning off. The
+    /// answers are the same either way.
+    pub fn with_spin(mut self, spin: Duration) -> Self {
+        self.spin = spin;
         self
     }
 
@@ -317,6 +307,7 @@ impl Engine {
         link: Option<&Link>,
     ) -> Result<(Vec<Hit>, PruneStats)> {
         self.check(space, &range, queries)?;
+        let _searching = Searching::start(self.spin);
         if let Some(l) = link {
             if l.len() != queries.len() {
                 return Err(EngineError::Geometry(format!(
@@ -326,7 +317,10 @@ impl Engine {
                 )));
             }
         }
-        let start = self.start_from_candidates(space, &range, queries, params);
+        let start = {
+            let _prep = Timer::prep();
+            self.start_from_candidates(space, &range, queries, params)
+        };
         let layout = space.layout();
         let (windowed, scanned): (Vec<usize>, Vec<usize>) =
             (0..queries.len()).partition(|&q| self.prune && space.keyed(params, queries.mask(q)));
@@ -365,7 +359,7 @@ impl Engine {
                 .chunks(&range)
                 .into_par_iter()
                 .map(|r| {
-                    let _busy = BusyTimer::start();
+                    let _busy = Timer::busy();
                     let mut sink = BestSink::from(&sub_start, self.prune);
                     self.scan(space, r, &sub, params, &mut sink);
                     let hits = sink
@@ -411,7 +405,7 @@ impl Engine {
         (0..queries.len())
             .into_par_iter()
             .map(|q| {
-                let _busy = BusyTimer::start();
+                let _busy = Timer::busy();
                 let mut best = queries.bound(q);
                 let candidates = if self.prune {
                     queries.candidates(q)
@@ -493,6 +487,7 @@ impl Engine {
         cut: &[u64],
     ) -> Result<Vec<Vec<Hit>>> {
         self.check(space, &range, queries)?;
+        let _searching = Searching::start(self.spin);
         one_per_query(cut.len(), "top-k cuts", queries)?;
         let own = self.topk_cut_from_candidates(space, &range, queries, params, k);
         let worst = own.iter().zip(cut).map(|(&a, &b)| a.min(b)).collect();
@@ -540,6 +535,7 @@ impl Engine {
         slack: &[Slack],
     ) -> Result<Vec<Vec<Hit>>> {
         self.check(space, &range, queries)?;
+        let _searching = Searching::start(self.spin);
         one_per_query(slack.len(), "slacks", queries)?;
         let start = self.start_from_candidates(space, &range, queries, params);
         let worst = start
@@ -590,7 +586,7 @@ impl Engine {
         }
         let nq = queries.len();
         if let Some(tree) = self.tree_for(space, queries) {
-            let _busy = BusyTimer::start();
+            let _busy = Timer::busy();
             let qs: Vec<&[u8]> = (0..nq).map(|q| queries.values(q)).collect();
             return Ok(tree.search_topk(&qs, params, range, k, &worst));
         }
@@ -598,7 +594,7 @@ impl Engine {
             .chunks(&range)
             .into_par_iter()
             .map(|r| {
-                let _busy = BusyTimer::start();
+                let _busy = Timer::busy();
                 let mut sink = TopKSink {
                     k,
                     lists: vec![Vec::with_capacity(k + 1); nq],

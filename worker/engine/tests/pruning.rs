@@ -258,6 +258,28 @@ fn pruned_search_equals_brute_force_on_a_real_level() {
             );
         }
         let expect = brute(&space, &batch, &params);
+        // Threads that spin between searches take the same work: the same
+        // answers, search after search, and the spinning ends by itself.
+        let spinning = Engine::default()
+            .with_min_chunk(64)
+            .with_spin(std::time::Duration::from_millis(2));
+        pool(4).install(|| {
+            for _ in 0..20 {
+                let got = with_bounds(
+                    batch.bounds(),
+                    &spinning.search_best(&space, 0..n, &batch, &params).unwrap(),
+                );
+                assert_eq!(got, expect, "spinning between searches, l2={l2}");
+            }
+        });
+        let t = std::time::Instant::now();
+        while texsyn_engine::spin::spinning() > 0 {
+            assert!(
+                t.elapsed() < std::time::Duration::from_secs(5),
+                "threads still spinning 5 s after the last search"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
         for k in Kernel::available() {
             for threads in [1, 2, 4] {
                 let e = Engine::new(k).with_min_chunk(64);

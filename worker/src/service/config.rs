@@ -103,6 +103,9 @@ pub struct WorkerConfig {
     /// Free a job this long after its last call; None = never.
     pub idle_timeout: Option<Duration>,
     pub kernel: Kernel,
+    /// How long the search threads spin for more work after each search
+    /// before they sleep (the engine's `with_spin`).
+    pub spin: Duration,
     /// How assigned ranges hold their vectors.
     pub storage: Storage,
     /// Connection count and timeouts before a connection is served.
@@ -128,6 +131,7 @@ impl Default for WorkerConfig {
             max_message: DEFAULT_MAX_MESSAGE,
             idle_timeout: Some(DEFAULT_IDLE_TIMEOUT),
             kernel: Kernel::detect(),
+            spin: texsyn_engine::search::DEFAULT_SPIN,
             storage: Storage::Auto,
             connections: ConnectionLimits::default(),
             wrong_answers: WrongAnswers::Never,
@@ -148,6 +152,7 @@ impl std::fmt::Debug for WorkerConfig {
             .field("max_message", &self.max_message)
             .field("idle_timeout", &self.idle_timeout)
             .field("kernel", &self.kernel)
+            .field("spin", &self.spin)
             .field("storage", &self.storage)
             .field("connections", &self.connections)
             .field("wrong_answers", &self.wrong_answers)

@@ -103,7 +103,7 @@ impl Shared {
         stop: tokio::sync::watch::Receiver<bool>,
     ) -> Self {
         Self {
-            engine: Engine::new(config.kernel),
+            engine: Engine::new(config.kernel).with_spin(config.spin),
             pool: Arc::new(pool),
             threads: config.threads,
             budget: Budget::new(config.max_memory),

@@ -91,6 +91,7 @@ where
     F: Fn(&T) -> R + Sync,
 {
     let next = std::sync::atomic::AtomicUsize::new(0);
+    let timer = crate::profile::SweepTimer::enter(threads);
     let done: Vec<Vec<(usize, R)>> = (0..threads.clamp(1, items.len().max(1)))
         .into_par_iter()
         .map(|_| {
@@ -98,11 +99,18 @@ where
             loop {
                 let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 let Some(item) = items.get(i) else { break };
+                if mine.is_empty() {
+                    timer.joined();
+                }
                 mine.push((i, f(item)));
+            }
+            if !mine.is_empty() {
+                timer.done();
             }
             mine
         })
         .collect();
+    drop(timer);
     let mut all: Vec<(usize, R)> = done.into_iter().flatten().collect();
     all.sort_by_key(|(i, _)| *i);
     all.into_iter().map(|(_, r)| r).collect()
@@ -186,6 +194,7 @@ impl KeyIndex {
         link: Option<(&Link, &[usize])>,
     ) -> (Vec<Hit>, PruneStats) {
         let linked = |i: usize| link.map_or(u64::MAX, |(l, at)| l.get(at[i]));
+        let prep = crate::profile::Timer::prep();
         let seeded: Vec<(Probe, usize, PruneStats)> = queries
             .par_iter()
             .zip(start.par_iter())
@@ -219,6 +228,7 @@ impl KeyIndex {
         let cut = balanced_parts(&windows, threads * PARTS_PER_THREAD, sw.min_part.max(1));
         let cut = nearest_first(cut, &centres);
         let shared = Bounds::new(&seeds, link);
+        drop(prep);
         let mut parts = pull_in_order(threads, &cut, |part| {
             self.sweep(sw, dense, probes.clone(), part.clone(), &shared)
         });
@@ -232,7 +242,7 @@ impl KeyIndex {
     /// sweep still visits every slot of the window, so the answer is the
     /// exhaustive one.
     fn seed(&self, sw: &Sweep, dense: &Dense, p: &mut Probe) -> (usize, PruneStats) {
-        let _busy = crate::search::BusyTimer::start();
+        let _busy = crate::profile::Timer::busy();
         let at = self.keys.partition_point(|&k| u64::from(k) < p.key);
         let slots = at.saturating_sub(SEED)..(at + SEED).min(self.keys.len());
         let mut scratch = Scratch::default();
@@ -314,7 +324,7 @@ impl KeyIndex {
         part: Range<usize>,
         shared: &Bounds,
     ) -> (Vec<Hit>, PruneStats) {
-        let _busy = crate::search::BusyTimer::start();
+        let _busy = crate::profile::Timer::busy();
         let mut scratch = Scratch::default();
         let mut a = part.start;
         while a < part.end {

@@ -218,7 +218,7 @@ impl KeyPlane {
         mut probes: Vec<PlaneProbe>,
         part: Range<u64>,
     ) -> (Vec<Hit>, PruneStats) {
-        let _busy = crate::search::BusyTimer::start();
+        let _busy = crate::profile::Timer::busy();
         let chunks = (sw.layout.stride() / LANE) as u64;
         let mut stats = PruneStats::default();
         let mut buf = vec![0u8; src.span()];
