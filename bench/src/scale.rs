@@ -37,6 +37,10 @@ pub struct ScaleArgs {
     /// The texsyn binary (default: next to texsyn-bench).
     #[arg(long)]
     pub texsyn: Option<PathBuf>,
+    /// One more argument for every texsyn run, repeatable (e.g.
+    /// `--texsyn-arg=--spin-us=0` to compare the wait policies).
+    #[arg(long, value_name = "ARG", allow_hyphen_values = true)]
+    pub texsyn_arg: Vec<String>,
 }
 
 /// One configuration's run.
@@ -71,6 +75,7 @@ fn run_one(a: &ScaleArgs, dir: &Path, label: &str, size: &str, extra: &[String])
         .args(["--size", size, "-q", "--report"])
         .arg(&report)
         .args(extra)
+        .args(&a.texsyn_arg)
         .stdout(Stdio::null());
     let (seconds, _) = m.run().with_context(|| format!("run {label}"))?;
     Ok(Run {
@@ -167,9 +172,14 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
         runs.push(r);
     }
     println!(
-        "sample {} | thread sweep at {} | workers at {csize}",
+        "sample {} | thread sweep at {} | workers at {csize}{}",
         a.sample.display(),
-        a.size
+        a.size,
+        if a.texsyn_arg.is_empty() {
+            String::new()
+        } else {
+            format!(" | texsyn {}", a.texsyn_arg.join(" "))
+        }
     );
     println!("| run | size | threads | time | speed-up | efficiency | of local | identical | level 0 search | idle | before sweeps | in sweeps | lag (thread-s) | tail (thread-s) | choose | queries | copy | batches |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");

@@ -73,6 +73,12 @@ impl ClusterArgs {
     /// Validates the flags, reads token and hosts files, starts the local
     /// workers. `None` when no worker source is given.
     pub fn setup(&self) -> Result<Option<ClusterSetup>> {
+        self.setup_with(&[])
+    }
+
+    /// [`ClusterArgs::setup`], with `worker_args` added to each local
+    /// worker's command line.
+    pub fn setup_with(&self, worker_args: &[OsString]) -> Result<Option<ClusterSetup>> {
         if !self.any() {
             self.check_no_cluster_flags()?;
             return Ok(None);
@@ -95,7 +101,7 @@ impl ClusterArgs {
         }
         let tls = self.tls.load()?;
         check_launch_tls(&launch, &tls)?;
-        let local = self.start_local_workers()?;
+        let local = self.start_local_workers(worker_args)?;
         if let Some(l) = &local {
             workers.extend(l.specs());
         }
@@ -163,7 +169,7 @@ impl ClusterArgs {
     }
 
     /// `--local-workers N`, if given.
-    fn start_local_workers(&self) -> Result<Option<LocalWorkers>> {
+    fn start_local_workers(&self, worker_args: &[OsString]) -> Result<Option<LocalWorkers>> {
         if self.local_workers == 0 {
             return Ok(None);
         }
@@ -172,7 +178,7 @@ impl ClusterArgs {
             &binary,
             self.local_workers,
             self.local_worker_threads,
-            &Vec::<OsString>::new(),
+            worker_args,
         )?;
         Ok(Some(l))
     }

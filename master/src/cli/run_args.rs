@@ -40,9 +40,10 @@ pub struct RunArgs {
     /// 1 GiB and half the memory left, planes beyond). Same output either way.
     #[arg(long, value_name = "STORE", default_value = "auto")]
     pub vector_store: String,
-    /// Microseconds the search threads spin for more work after each search
-    /// before they sleep (0: sleep at once). Spinning spares the next search
-    /// their wake-up; the output is the same bytes either way.
+    /// Microseconds the search threads (and those of --local-workers) spin
+    /// for more work after each search before they sleep (0: sleep at once).
+    /// Spinning spares the next search their wake-up; the output is the same
+    /// bytes either way.
     #[arg(long, value_name = "US", default_value_t = texsyn_engine::search::DEFAULT_SPIN.as_micros() as u64,
           value_parser = clap::value_parser!(u64).range(0..=1_000_000))]
     pub spin_us: u64,
@@ -78,7 +79,10 @@ impl RunArgs {
             lbg_threshold: self.lbg_threshold,
             seed,
             largest_sample,
-            cluster: self.cluster.setup()?,
+            // Local workers wait as this process's threads do.
+            cluster: self
+                .cluster
+                .setup_with(&["--spin-us".into(), self.spin_us.to_string().into()])?,
         })
     }
 
