@@ -40,11 +40,8 @@ pub(super) struct LevelStats {
     pub batches: u64,
     /// Wall time in the backend's search.
     pub search_seconds: f64,
-    /// Thread time of this process's engine inside those searches (0 when the
-    /// search ran elsewhere).
-    pub search_busy_seconds: f64,
-    /// This process's engine's figures over those searches (all zero when
-    /// the search ran elsewhere).
+    /// This process's engine's figures over those searches: thread time and
+    /// sweeps (all zero when the search ran elsewhere).
     pub profile: texsyn_engine::Profile,
     /// Picking each batch's blocks from the queue.
     pub choose_seconds: f64,
@@ -210,7 +207,6 @@ pub(super) fn fill_level(
         };
         stats.search_seconds += t.elapsed().as_secs_f64();
         let spent = texsyn_engine::Profile::now().since(&before);
-        stats.search_busy_seconds += spent.busy as f64 * 1e-9;
         stats.profile.add(&spent);
         let t = Instant::now();
         ensure!(

@@ -103,7 +103,7 @@ pub(super) fn run_level(
     let prune = backend.level_prune();
     backend.end_level();
     let threads = rayon::current_num_threads();
-    let busy = (stats.search_busy_seconds > 0.0).then_some(stats.search_busy_seconds);
+    let busy = (stats.profile.busy > 0).then_some(stats.profile.busy as f64 * 1e-9);
     tracing::info!(
         level = l,
         search = stats.search_seconds,

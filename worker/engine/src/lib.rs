@@ -38,6 +38,6 @@ pub use merge::{
 };
 pub use plane::{OwnedPlane, Plane, Sample};
 pub use positions::Positions;
-pub use profile::{busy_nanos, Profile};
+pub use profile::Profile;
 pub use search::Engine;
 pub use space::{Storage, VectorSpace};

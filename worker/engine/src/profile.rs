@@ -23,7 +23,8 @@ fn nanos(since: Instant) -> u64 {
 /// what happened between two.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Profile {
-    /// Thread time in search tasks, all threads.
+    /// Thread time in search tasks, all threads. Set against a search's
+    /// wall time × threads, it gives how long the threads sat idle.
     pub busy: u64,
     /// Wall time before the sweeps: each query's start from its coherence
     /// candidates and its seed.
@@ -75,14 +76,6 @@ impl Profile {
     }
 }
 
-/// Thread time this process has spent in search tasks so far (all searches,
-/// all threads), in nanoseconds. The difference over a search, set against
-/// its wall time × threads, is how long the threads sat idle: waiting for the
-/// slowest part, or outside the parallel section.
-pub fn busy_nanos() -> u64 {
-    BUSY.load(Ordering::Relaxed)
-}
-
 /// Adds the time from its start to its drop to one counter.
 pub(crate) struct Timer {
     into: &'static AtomicU64,
@@ -90,7 +83,7 @@ pub(crate) struct Timer {
 }
 
 impl Timer {
-    /// Thread time in a search task ([`busy_nanos`]).
+    /// Thread time in a search task ([`Profile::busy`]).
     pub(crate) fn busy() -> Self {
         Self {
             into: &BUSY,
