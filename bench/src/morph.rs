@@ -45,10 +45,7 @@ pub struct MorphArgs {
 }
 
 fn settings(neighbourhood: Neighbourhood) -> ParallelSettings {
-    ParallelSettings {
-        neighbourhood,
-        ..ParallelSettings::default()
-    }
+    ParallelSettings::defaults_for(neighbourhood, true)
 }
 
 pub fn run(a: &MorphArgs) -> Result<()> {

@@ -164,10 +164,7 @@ fn main() -> Result<()> {
         let b = imaging::load_color(&tex.join("leaves_green_color_161.png"))?;
         let (w, h) = (640, 192);
         let maps = weights::ramp(2, weights::Axis::X, w, h);
-        let settings = ParallelSettings {
-            neighbourhood: Neighbourhood::Half,
-            ..ParallelSettings::default()
-        };
+        let settings = ParallelSettings::defaults_for(Neighbourhood::Half, true);
         let t = std::time::Instant::now();
         let mut backend = LocalSearch::new(Engine::default());
         let out = parallel::synth::morph(
@@ -197,11 +194,7 @@ fn main() -> Result<()> {
             &colour,
             side,
             side,
-            &ParallelSettings {
-                neighbourhood: Neighbourhood::Full(7),
-                passes: parallel::driver::default_passes(Neighbourhood::Full(7)),
-                ..ParallelSettings::default()
-            },
+            &ParallelSettings::defaults_for(Neighbourhood::Full(7), false),
             &mut backend,
             &texsyn::progress::Silent,
         )?;

@@ -44,7 +44,18 @@ fn a_morph_of_one_exemplar_under_weight_one_is_the_parallel_synthesis() {
     let dir = tempfile::tempdir().unwrap();
     let d = |f: &str| dir.path().join(f);
     let sample = common::assets().join("pink_marble_color_128.png");
-    let settings = ["--neighbourhood", "half", "--jitter", "0.5", "--seed", "9"];
+    // The same passes for both: `morph` keeps the paper's 2 by default where
+    // `synth` takes 4 for `half`.
+    let settings = [
+        "--neighbourhood",
+        "half",
+        "--jitter",
+        "0.5",
+        "--seed",
+        "9",
+        "--passes",
+        "3",
+    ];
     let synth = [
         "synth",
         s(&sample),
@@ -315,6 +326,22 @@ fn bad_input_is_refused_with_the_fix_named() {
     assert!(synth(&["--jitter", "1.5"]).contains("[0, 1]"));
     assert!(synth(&["--tileable"]).contains("--tileable"));
     assert!(synth(&["--passes", "0"]).contains("--passes 0 must be in 1..=64"));
+    assert!(synth(&["--coherence=-1"]).contains("--coherence -1 must be in [0, 1000]"));
+    assert!(synth(&["--coherence", "NaN"]).contains("must be in [0, 1000]"));
+    let e = refused(&[
+        "synth",
+        s(&a),
+        "--coherence",
+        "10",
+        "--size",
+        "64x64",
+        "-o",
+        s(&out),
+    ]);
+    assert!(
+        e.contains("--coherence belongs to --method parallel"),
+        "{e}"
+    );
     let e = refused(&[
         "synth",
         s(&a),

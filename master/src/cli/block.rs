@@ -246,6 +246,10 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
     );
     ensure!(a.passes.is_none(), "--passes belongs to --method parallel");
     ensure!(
+        a.coherence.is_none(),
+        "--coherence belongs to --method parallel"
+    );
+    ensure!(
         a.candidate_cache.is_none(),
         "--candidate-cache belongs to --method parallel"
     );
@@ -330,7 +334,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
     ];
     if let Some((flag, _)) = block_flags.iter().find(|(_, given)| *given) {
         anyhow::bail!(
-            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --seed, --coords and the run flags)"
+            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --coherence, --seed, --coords and the run flags)"
         );
     }
     let args = ParallelArgs {
@@ -343,6 +347,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         seed: c.seed,
         correct_every_level: a.correct_every_level,
         passes: a.passes,
+        coherence: a.coherence,
         histogram: a
             .histogram
             .unwrap_or(crate::parallel::driver::DEFAULT_HISTOGRAM),

@@ -183,10 +183,16 @@ pub struct SynthArgs {
     /// more is only jittered, so no offset copies the sample over the output).
     #[arg(long)]
     pub correct_every_level: bool,
-    /// --method parallel: correction passes per level (1 to 64; default 2,
-    /// the paper's, and 3 for --neighbourhood 5 and 7).
+    /// --method parallel: correction passes per level (1 to 64; default 4
+    /// for reduced and half, 3 for --neighbourhood 5 and 7; the paper's is 2).
     #[arg(long)]
     pub passes: Option<usize>,
+    /// --method parallel: coherence weight c ≥ 0 of the correction's choice
+    /// (a candidate that v of the pixel's 3×3 neighbours continue has its
+    /// distance scaled by 1 + c·(1 − v/9); default 10 for reduced and half,
+    /// 0, the paper's plain choice, for 5 and 7).
+    #[arg(long)]
+    pub coherence: Option<f32>,
     /// --method parallel: strength of the histogram matching of the blend
     /// before every correction sub-pass, 0 to 1 (default 1; 0: the paper's
     /// plain method, which loses thin features).

@@ -75,9 +75,16 @@ pub struct ParallelArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Correction passes per level, each of four sub-passes (1 to 64;
-    /// default 2, the paper's, and 3 for the 5 and 7 neighbourhoods).
+    /// default 3 for the 5 and 7 neighbourhoods; for reduced and half 4 in
+    /// `synth` and the paper's 2 in `morph`).
     #[arg(long)]
     pub passes: Option<usize>,
+    /// Coherence weight c ≥ 0 of the correction's choice: a candidate that
+    /// v of the pixel's 3×3 neighbours continue coherently has its distance
+    /// scaled by 1 + c·(1 − v/9). Default 10 for reduced and half, 0 (the
+    /// paper's plain choice) for 5 and 7.
+    #[arg(long)]
+    pub coherence: Option<f32>,
     /// Correct every level, as the paper does. By default a level whose
     /// neighbourhood spans half the exemplar's smaller side or more is only
     /// jittered: there the exemplar itself is the one neighbourhood that
@@ -150,23 +157,27 @@ pub(super) fn parse_jitter(s: &str) -> Result<Vec<f64>> {
 }
 
 impl ParallelArgs {
-    fn settings(&self, colour: MorphColour) -> Result<ParallelSettings> {
+    fn settings(&self, colour: MorphColour, morph: bool) -> Result<ParallelSettings> {
         let h = self.histogram;
         ensure!(
             h.is_finite() && (0.0..=1.0).contains(&h),
             "--histogram {h} must be in [0, 1] (1: full matching, 0: the paper's plain method)"
         );
         let neighbourhood = parse_neighbourhood(&self.neighbourhood)?;
-        let passes = self
-            .passes
-            .unwrap_or(crate::parallel::driver::default_passes(neighbourhood));
+        let defaults = ParallelSettings::defaults_for(neighbourhood, morph);
+        let passes = self.passes.unwrap_or(defaults.passes);
         ensure!(
             (1..=64).contains(&passes),
             "--passes {passes} must be in 1..=64"
         );
+        let coherence = self.coherence.unwrap_or(defaults.coherence);
+        ensure!(
+            coherence.is_finite() && (0.0..=1000.0).contains(&coherence),
+            "--coherence {coherence} must be in [0, 1000] (0: the paper's plain choice)"
+        );
         Ok(ParallelSettings {
-            neighbourhood,
             passes,
+            coherence,
             jitter: parse_jitter(&self.jitter)?,
             start: Start::parse(&self.start)?,
             seed: self.seed,
@@ -175,20 +186,21 @@ impl ParallelArgs {
             budget: self.run.budget(),
             colour,
             cache: open_cache(self.candidate_cache.as_deref())?,
-            ..ParallelSettings::default()
+            ..defaults
         })
     }
 
     /// Runs the morph of `exemplars` with `maps` on the local engine or the
-    /// cluster, with a progress bar over the levels.
+    /// cluster, with a progress bar over the levels. `colour` is `None` for
+    /// `synth`, which takes its own defaults ([`ParallelSettings::defaults_for`]).
     fn run(
         &self,
         exemplars: &[&ColorImage],
         maps: &[Vec<f32>],
         size: (usize, usize),
-        colour: MorphColour,
+        colour: Option<MorphColour>,
     ) -> Result<Synthesis> {
-        let settings = self.settings(colour)?;
+        let settings = self.settings(colour.unwrap_or_default(), colour.is_some())?;
         let pool = self.run.pool()?;
         let largest = exemplars
             .iter()
@@ -234,7 +246,7 @@ pub fn run_synth(
     let sample = deep.search_colour();
     let ones = vec![vec![1.0f32; size.0 * size.1]];
     let t = Instant::now();
-    let out = args.run(&[&sample], &ones, size, MorphColour::default())?;
+    let out = args.run(&[&sample], &ones, size, None)?;
     let image = deep.rebuild(&out.coords[0].coords, size.0, size.1, None)?;
     imaging::save_image(output, &image)?;
     if let Some(p) = coords {
@@ -295,7 +307,7 @@ pub fn run_morph(a: &MorphArgs) -> Result<()> {
     };
     let refs: Vec<&ColorImage> = images.iter().collect();
     let t = Instant::now();
-    let out = a.settings.run(&refs, &maps, size, colour)?;
+    let out = a.settings.run(&refs, &maps, size, Some(colour))?;
     imaging::save_color(&a.output, &out.image)?;
     for (p, c) in coord_paths.iter().zip(&out.coords) {
         imaging::save_coord_map(p, size.0, size.1, &c.coords)?;

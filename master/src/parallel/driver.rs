@@ -33,6 +33,12 @@ pub struct ParallelSettings {
     pub every_level: bool,
     /// k of the k-coherence candidate sets.
     pub k: usize,
+    /// Coherence weight `c` of the correction's choice (ARCHITECTURE §10):
+    /// a candidate continued coherently by `v` of the pixel's 3×3 neighbours
+    /// (itself included) has its distance scaled by `1 + c·(1 − v/9)`, so a
+    /// candidate that breaks the neighbours' agreement must be clearly
+    /// better. 0 is the paper's plain eq. 3. Plane only; solids use 0.
+    pub coherence: f32,
     /// Strength of the histogram matching of the blend before each
     /// correction sub-pass, 0 to 1 ([`super::histogram`]; 0: the paper's
     /// plain method).
@@ -62,6 +68,21 @@ pub enum MorphColour {
     Weighted,
 }
 
+impl ParallelSettings {
+    /// The defaults the command line gives neighbourhood `n` in a synthesis
+    /// (`morph` false) or a morph: [`default_passes`] and
+    /// [`default_coherence`] on top of [`ParallelSettings::default`], which
+    /// keeps the paper's 2 passes and plain choice.
+    pub fn defaults_for(n: Neighbourhood, morph: bool) -> Self {
+        Self {
+            neighbourhood: n,
+            passes: default_passes(n, morph),
+            coherence: default_coherence(n),
+            ..Self::default()
+        }
+    }
+}
+
 impl Default for ParallelSettings {
     fn default() -> Self {
         Self {
@@ -71,6 +92,7 @@ impl Default for ParallelSettings {
             passes: 2,
             every_level: false,
             k: 4,
+            coherence: 0.0,
             histogram: DEFAULT_HISTOGRAM,
             seed: 1,
             budget: crate::budget::Budget::default(),
@@ -90,16 +112,34 @@ pub const DEFAULT_JITTER: [f64; 4] = [1.0, 0.8, 0.6, 0.4];
 pub const DEFAULT_HISTOGRAM: f32 = 1.0;
 
 /// Correction passes per level that the command line gives `n` unless told
-/// otherwise: the paper's 2, and 3 for the full 5×5 and 7×7 neighbourhoods,
-/// whose corrections had not settled after two. On 8 samples at 2× their
-/// side a third 7×7 pass lowered the patch fidelity ratio to the block
-/// method on every one (facade 1.81 → 1.67, tiles 1.47 → 1.37, leaves
-/// 1.34 → 1.27, brick 96 1.32 → 1.25) for about 1.3× the time; `reduced`
-/// and `half` keep 2, which keeps a cached 512² morph under 2 and 3 s.
-pub fn default_passes(n: Neighbourhood) -> usize {
+/// otherwise. For the full 5×5 and 7×7 neighbourhoods 3, whose corrections
+/// had not settled after two: on 8 samples at 2× their side a third 7×7
+/// pass lowered the patch fidelity ratio to the block method on every one
+/// (facade 1.81 → 1.67, tiles 1.47 → 1.37, leaves 1.34 → 1.27, brick 96
+/// 1.32 → 1.25) for about 1.3× the time. For `reduced` and `half`, with
+/// their coherence weight ([`default_coherence`]), 4 in a synthesis: on
+/// the 22 samples up to 256² at 2× their side the median fidelity ratio
+/// to the block method fell from 1.50 (2 passes) to 1.37 (`reduced`); a
+/// morph (`morph`) keeps the paper's 2, which keeps a cached 512² morph
+/// under 2 and 3 s.
+pub fn default_passes(n: Neighbourhood, morph: bool) -> usize {
     match n {
         Neighbourhood::Full(_) => 3,
-        Neighbourhood::Reduced | Neighbourhood::Half => 2,
+        Neighbourhood::Reduced | Neighbourhood::Half if morph => 2,
+        Neighbourhood::Reduced | Neighbourhood::Half => 4,
+    }
+}
+
+/// The coherence weight ([`ParallelSettings::coherence`]) that the command
+/// line gives `n` unless told otherwise: 10 for `reduced` and `half`, whose
+/// four or nine averaged points cannot tell a pixel's exact alignment, so
+/// left alone their corrections kept only 68% of neighbour pairs coherent
+/// (walnut 128 → 256²; 87% with the weight, 92% for 7×7 without it); 0 for
+/// 5×5 and 7×7, where the weight made fidelity and S_L worse.
+pub fn default_coherence(n: Neighbourhood) -> f32 {
+    match n {
+        Neighbourhood::Full(_) => 0.0,
+        Neighbourhood::Reduced | Neighbourhood::Half => 10.0,
     }
 }
 

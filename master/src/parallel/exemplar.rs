@@ -107,9 +107,10 @@ impl ExemplarLevel {
     /// neighbours (`neighbour(dx, dy)`, offsets in the level's plane) shifted
     /// back by `h·(dx, dy)`. Coherent neighbours shift back to the same
     /// exemplar pixel: each such base is taken once.
-    pub(super) fn bases(&self, neighbour: impl Fn(i64, i64) -> [u32; 2]) -> ([[u32; 2]; 9], usize) {
+    pub(super) fn bases(&self, neighbour: impl Fn(i64, i64) -> [u32; 2]) -> Bases {
         let (ew, eh) = (self.width as i64, self.height as i64);
         let mut bases = [[u32::MAX; 2]; 9];
+        let mut votes = [0u8; 9];
         let mut nb = 0;
         for dy in -1..=1i64 {
             for dx in -1..=1i64 {
@@ -118,43 +119,51 @@ impl ExemplarLevel {
                     (i64::from(n[0]) - self.h * dx).rem_euclid(ew) as u32,
                     (i64::from(n[1]) - self.h * dy).rem_euclid(eh) as u32,
                 ];
-                if !bases[..nb].contains(&base) {
-                    bases[nb] = base;
-                    nb += 1;
+                match bases[..nb].iter().position(|b| *b == base) {
+                    Some(i) => votes[i] += 1,
+                    None => {
+                        bases[nb] = base;
+                        votes[nb] = 1;
+                        nb += 1;
+                    }
                 }
             }
         }
-        (bases, nb)
+        Bases {
+            at: bases,
+            votes,
+            len: nb,
+        }
     }
 
     /// The choice of eq. 3: of the candidates of `bases` (`k` each in
-    /// `table`), the one whose neighbourhood is nearest to `want` after
-    /// adding its `penalty`; `current` when none is nearer than infinity.
+    /// `table`), the one whose neighbourhood is nearest to `want`;
+    /// `current` when none is nearer than infinity. A candidate that is not
+    /// itself a base (the coherent continuation of a neighbour's coordinate)
+    /// has its distance scaled by `1 + coherence` ([`super::driver::ParallelSettings::coherence`]),
+    /// so an incoherent one must be clearly better to win.
     /// A candidate seen twice scores the same twice, and ties go to the
     /// smaller coordinate, so the order candidates are met in does not
     /// matter and candidates are not deduplicated.
     pub(super) fn best_candidate(
         &self,
-        bases: &[[u32; 2]],
+        bases: &Bases,
         (k, table): (usize, &[[u32; 2]]),
         points: &[Vec<[i32; 2]>],
         (want, buf): (&[f32], &mut Vec<f32>),
         current: [u32; 2],
-        penalty: impl Fn([u32; 2]) -> f32,
+        coherence: f32,
     ) -> [u32; 2] {
         let mut best = (f32::INFINITY, current);
-        for base in bases {
+        for base in bases.list() {
             let at = (base[1] as usize * self.width + base[0] as usize) * k;
             for &q in &table[at..at + k] {
-                let pen = penalty(q);
-                if pen > best.0 {
-                    continue;
-                }
+                let f = 1.0 + coherence * (1.0 - f32::from(bases.votes(q)) / 9.0);
                 let have = self.neighbourhood(q, points, buf);
-                let Some(d) = ssd_below(want, have, best.0 - pen) else {
+                let Some(d) = ssd_below(want, have, best.0 / f) else {
                     continue;
                 };
-                let d = d + pen;
+                let d = d * f;
                 if d < best.0 || (d == best.0 && (q[1], q[0]) < (best.1[1], best.1[0])) {
                     best = (d, q);
                 }
@@ -186,6 +195,28 @@ impl ExemplarLevel {
 
 /// A blur of the exemplar for the stack level of step `h`: a wrapping box
 /// of radius `h/2` ([`crate::filters::box_blur_rgb`]).
+/// The bases of k-coherence at a pixel, each with the number of its 3×3
+/// neighbours (itself included) whose coordinates shift back to it.
+pub(super) struct Bases {
+    at: [[u32; 2]; 9],
+    votes: [u8; 9],
+    len: usize,
+}
+
+impl Bases {
+    pub(super) fn list(&self) -> &[[u32; 2]] {
+        &self.at[..self.len]
+    }
+
+    /// How many of the 3×3 neighbours continue coherently into `q`.
+    pub(super) fn votes(&self, q: [u32; 2]) -> u8 {
+        self.list()
+            .iter()
+            .position(|b| *b == q)
+            .map_or(0, |i| self.votes[i])
+    }
+}
+
 pub(super) fn blurred(img: &ColorImage, h: usize) -> ColorImage {
     crate::filters::box_blur_rgb(img, if h <= 1 { 0 } else { h / 2 })
 }
@@ -219,6 +250,45 @@ mod tests {
     use super::*;
 
     use crate::parallel::tests::texture;
+
+    /// Each base of k-coherence counts the 3×3 neighbours that shift back
+    /// to it: nine for a coherent patch, split where a neighbour breaks it;
+    /// a coordinate no neighbour continues has no vote.
+    #[test]
+    fn bases_count_the_neighbours_that_continue_them() {
+        let ex = ExemplarLevel {
+            width: 16,
+            height: 16,
+            dims: 1,
+            h: 2,
+            appearance: vec![0.0; 256],
+            table: None,
+            stride: 1,
+        };
+        // Neighbour (dx, dy) of a patch at offset (5, 7) sits at
+        // (5, 7) + h·(dx, dy), wrapped on the 16² exemplar.
+        let patch = |dx: i64, dy: i64| {
+            [
+                (5 + 2 * dx).rem_euclid(16) as u32,
+                (7 + 2 * dy).rem_euclid(16) as u32,
+            ]
+        };
+        let whole = ex.bases(patch);
+        assert_eq!(whole.list(), &[[5, 7]]);
+        assert_eq!(whole.votes([5, 7]), 9);
+        let broken = ex.bases(|dx, dy| {
+            if (dx, dy) == (1, 1) {
+                [0, 0]
+            } else {
+                patch(dx, dy)
+            }
+        });
+        assert_eq!(broken.list().len(), 2);
+        assert_eq!(broken.votes([5, 7]), 8);
+        // (0, 0) shifted back by h·(1, 1), wrapped.
+        assert_eq!(broken.votes([14, 14]), 1);
+        assert_eq!(broken.votes([3, 3]), 0);
+    }
 
     #[test]
     fn the_stack_blur_is_a_wrapping_box_filter() {

@@ -365,19 +365,19 @@ impl Level<'_> {
         let (k, table) = &self.cands[self.view_ex[j]];
         let [u, v] = self.planes[j];
         // k-coherence from the 3×3 neighbours in the view's plane.
-        let (bases, nb) = exl.bases(|du, dv| {
+        let bases = exl.bases(|du, dv| {
             let mut q = p;
             q[u] += du;
             q[v] += dv;
             coords[self.index(q) * self.m + j]
         });
         exl.best_candidate(
-            &bases[..nb],
+            &bases,
             (*k, table),
             self.points2,
             (want, buf),
             coords[i * self.m + j],
-            |_| 0.0,
+            0.0,
         )
     }
 }
