@@ -11,7 +11,6 @@ use anyhow::{ensure, Context, Result};
 use super::block_args::{
     config_with_stitch, parse_position, ExtendArgs, FillArgs, MethodArg, SynthArgs,
 };
-use super::parallel::DEFAULT_JITTER_ARG;
 use super::{parallel, parse_size, progress, Common, ParallelArgs};
 use crate::block::{self, Config, FillSource, Mode, Stitch, SynthMethod};
 use crate::imaging::{self, ColorImage, DeepImage, PixelFormat};
@@ -339,10 +338,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
     }
     let args = ParallelArgs {
         neighbourhood: c.neighbourhood.clone().unwrap_or_else(|| "reduced".into()),
-        jitter: a
-            .jitter
-            .clone()
-            .unwrap_or_else(|| DEFAULT_JITTER_ARG.into()),
+        jitter: a.jitter.clone(),
         start: a.start.clone().unwrap_or_else(|| "random".into()),
         seed: c.seed,
         correct_every_level: a.correct_every_level,

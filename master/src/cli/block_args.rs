@@ -171,7 +171,8 @@ pub struct SynthArgs {
     #[arg(long, value_enum, default_value_t = MethodArg::Grow)]
     pub method: MethodArg,
     /// --method parallel: jitter strength r in [0, 1], or one per level,
-    /// coarsest first (r1,r2,...).
+    /// coarsest first (r1,r2,...; default 1,0.8,0.6,0.4, and 1,0.8,0.7,0.6
+    /// for --neighbourhood 5).
     #[arg(long)]
     pub jitter: Option<String>,
     /// --method parallel: the coarsest level's start, random (default) or

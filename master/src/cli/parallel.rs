@@ -64,9 +64,10 @@ pub struct ParallelArgs {
     #[arg(long, alias = "neighborhood", default_value = "reduced")]
     pub neighbourhood: String,
     /// Jitter strength r in [0, 1], or one per level, coarsest first
-    /// (r1,r2,...; the last repeats). The paper's is 0.4 everywhere.
-    #[arg(long, default_value = DEFAULT_JITTER_ARG)]
-    pub jitter: String,
+    /// (r1,r2,...; the last repeats). Default 1,0.8,0.6,0.4, and
+    /// 1,0.8,0.7,0.6 for the 5 neighbourhood. The paper's is 0.4 everywhere.
+    #[arg(long)]
+    pub jitter: Option<String>,
     /// The coarsest level's start: random (every offset alike) or tiled
     /// (the paper's §4.1, S(P) = P mod the exemplar size).
     #[arg(long, default_value = "random")]
@@ -120,9 +121,6 @@ pub struct ReplayArgs {
     #[arg(short, long)]
     pub output: PathBuf,
 }
-
-/// `--jitter`'s default: [`crate::parallel::driver::DEFAULT_JITTER`].
-pub const DEFAULT_JITTER_ARG: &str = "1,0.8,0.6,0.4";
 
 /// Parses the neighbourhood name.
 pub fn parse_neighbourhood(s: &str) -> Result<Neighbourhood> {
@@ -178,7 +176,10 @@ impl ParallelArgs {
         Ok(ParallelSettings {
             passes,
             coherence,
-            jitter: parse_jitter(&self.jitter)?,
+            jitter: match &self.jitter {
+                Some(j) => parse_jitter(j)?,
+                None => defaults.jitter.clone(),
+            },
             start: Start::parse(&self.start)?,
             seed: self.seed,
             every_level: self.correct_every_level,

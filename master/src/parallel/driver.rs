@@ -78,6 +78,7 @@ impl ParallelSettings {
             neighbourhood: n,
             passes: default_passes(n, morph),
             coherence: default_coherence(n),
+            jitter: default_jitter(n).to_vec(),
             ..Self::default()
         }
     }
@@ -108,15 +109,30 @@ impl Default for ParallelSettings {
 /// only refine. The paper's single value is `--jitter 0.4`.
 pub const DEFAULT_JITTER: [f64; 4] = [1.0, 0.8, 0.6, 0.4];
 
+/// The jitter the command line gives `n` unless told otherwise:
+/// [`DEFAULT_JITTER`], and for 5×5 a stronger jitter at the fine levels
+/// (0.7, then 0.6), which its fourth correction pass needs: with 4 passes
+/// and the default jitter one offset grew over 0.108 of `cracked_color_144`
+/// at 2× its side; with this one the largest on the 22 samples up to 256²
+/// is 0.078.
+pub fn default_jitter(n: Neighbourhood) -> &'static [f64] {
+    match n {
+        Neighbourhood::Full(5) => &[1.0, 0.8, 0.7, 0.6],
+        _ => &DEFAULT_JITTER,
+    }
+}
+
 /// Default strength of the histogram matching: full (ARCHITECTURE §10–11).
 pub const DEFAULT_HISTOGRAM: f32 = 1.0;
 
 /// Correction passes per level that the command line gives `n` unless told
-/// otherwise. For the full 5×5 and 7×7 neighbourhoods 3, whose corrections
-/// had not settled after two: on 8 samples at 2× their side a third 7×7
-/// pass lowered the patch fidelity ratio to the block method on every one
-/// (facade 1.81 → 1.67, tiles 1.47 → 1.37, leaves 1.34 → 1.27, brick 96
-/// 1.32 → 1.25) for about 1.3× the time. For `reduced` and `half`, with
+/// otherwise. For 7×7 3, whose corrections had not settled after two: on 8
+/// samples at 2× their side a third 7×7 pass lowered the patch fidelity
+/// ratio to the block method on every one (facade 1.81 → 1.67, tiles
+/// 1.47 → 1.37, leaves 1.34 → 1.27, brick 96 1.32 → 1.25) for about 1.3×
+/// the time. For 5×5 4 (with [`default_jitter`]): on the 22 samples up to
+/// 256² at 2× their side its fidelity ratio was within 1.3 on 15 with 3
+/// passes and on 18 with 4. For `reduced` and `half`, with
 /// their coherence weight ([`default_coherence`]), 4 in a synthesis: on
 /// the 22 samples up to 256² at 2× their side the median fidelity ratio
 /// to the block method fell from 1.50 (2 passes) to 1.37 (`reduced`); a
@@ -124,6 +140,7 @@ pub const DEFAULT_HISTOGRAM: f32 = 1.0;
 /// under 2 and 3 s.
 pub fn default_passes(n: Neighbourhood, morph: bool) -> usize {
     match n {
+        Neighbourhood::Full(5) => 4,
         Neighbourhood::Full(_) => 3,
         Neighbourhood::Reduced | Neighbourhood::Half if morph => 2,
         Neighbourhood::Reduced | Neighbourhood::Half => 4,
