@@ -37,6 +37,9 @@ pub(super) struct Volume<'a> {
     pub seed: u64,
     /// Strength of the histogram matching.
     pub histogram: f32,
+    /// Coherence weight of the correction's choice
+    /// ([`crate::parallel::synth::ParallelSettings::coherence`]).
+    pub coherence: f32,
     pub dims: usize,
     /// Per material, its weight at every voxel of the full size (several
     /// materials only).
@@ -126,6 +129,7 @@ impl Lattice for Volume<'_> {
             weights: lw,
             matching,
             strength: self.histogram,
+            coherence: self.coherence,
         };
         ctx.blend_all(&self.coords, &mut self.blend);
         for _ in 0..passes {
@@ -221,6 +225,7 @@ struct Level<'a> {
     /// The histogram matching of the blend, and its strength.
     matching: Option<Matching>,
     strength: f32,
+    coherence: f32,
 }
 
 impl Level<'_> {
@@ -377,7 +382,7 @@ impl Level<'_> {
             self.points2,
             (want, buf),
             coords[i * self.m + j],
-            0.0,
+            self.coherence,
         )
     }
 }

@@ -240,6 +240,7 @@ pub fn synthesize(
         size,
         seed: s.seed,
         histogram: s.histogram,
+        coherence: s.coherence,
         dims,
         full_weights,
         points3,
