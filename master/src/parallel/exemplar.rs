@@ -138,10 +138,11 @@ impl ExemplarLevel {
 
     /// The choice of eq. 3: of the candidates of `bases` (`k` each in
     /// `table`), the one whose neighbourhood is nearest to `want`;
-    /// `current` when none is nearer than infinity. A candidate that is not
-    /// itself a base (the coherent continuation of a neighbour's coordinate)
-    /// has its distance scaled by `1 + coherence` ([`super::driver::ParallelSettings::coherence`]),
-    /// so an incoherent one must be clearly better to win.
+    /// `current` when none is nearer than infinity. A candidate that `v` of
+    /// the 3×3 neighbours continue ([`Bases::votes`]; 0 for one that is no
+    /// base) has its distance scaled by `1 + coherence·(1 − v/9)`
+    /// ([`super::driver::ParallelSettings::coherence`]), so one that breaks
+    /// the neighbours' agreement must be clearly nearer to win.
     /// A candidate seen twice scores the same twice, and ties go to the
     /// smaller coordinate, so the order candidates are met in does not
     /// matter and candidates are not deduplicated.
