@@ -192,16 +192,18 @@ impl ParallelArgs {
     }
 
     /// Runs the morph of `exemplars` with `maps` on the local engine or the
-    /// cluster, with a progress bar over the levels. `colour` is `None` for
-    /// `synth`, which takes its own defaults ([`ParallelSettings::defaults_for`]).
+    /// cluster, with a progress bar over the levels. `morph` picks the
+    /// morph's defaults over the synthesis's
+    /// ([`ParallelSettings::defaults_for`]).
     fn run(
         &self,
         exemplars: &[&ColorImage],
         maps: &[Vec<f32>],
         size: (usize, usize),
-        colour: Option<MorphColour>,
+        colour: MorphColour,
+        morph: bool,
     ) -> Result<Synthesis> {
-        let settings = self.settings(colour.unwrap_or_default(), colour.is_some())?;
+        let settings = self.settings(colour, morph)?;
         let pool = self.run.pool()?;
         let largest = exemplars
             .iter()
@@ -247,7 +249,7 @@ pub fn run_synth(
     let sample = deep.search_colour();
     let ones = vec![vec![1.0f32; size.0 * size.1]];
     let t = Instant::now();
-    let out = args.run(&[&sample], &ones, size, None)?;
+    let out = args.run(&[&sample], &ones, size, MorphColour::default(), false)?;
     let image = deep.rebuild(&out.coords[0].coords, size.0, size.1, None)?;
     imaging::save_image(output, &image)?;
     if let Some(p) = coords {
@@ -308,7 +310,7 @@ pub fn run_morph(a: &MorphArgs) -> Result<()> {
     };
     let refs: Vec<&ColorImage> = images.iter().collect();
     let t = Instant::now();
-    let out = a.settings.run(&refs, &maps, size, Some(colour))?;
+    let out = a.settings.run(&refs, &maps, size, colour, true)?;
     imaging::save_color(&a.output, &out.image)?;
     for (p, c) in coord_paths.iter().zip(&out.coords) {
         imaging::save_coord_map(p, size.0, size.1, &c.coords)?;

@@ -159,7 +159,11 @@ impl ExemplarLevel {
         for base in bases.list() {
             let at = (base[1] as usize * self.width + base[0] as usize) * k;
             for &q in &table[at..at + k] {
-                let f = 1.0 + coherence * (1.0 - f32::from(bases.votes(q)) / 9.0);
+                let f = if coherence > 0.0 {
+                    1.0 + coherence * (1.0 - f32::from(bases.votes(q)) / 9.0)
+                } else {
+                    1.0
+                };
                 let have = self.neighbourhood(q, points, buf);
                 let Some(d) = ssd_below(want, have, best.0 / f) else {
                     continue;

@@ -491,8 +491,9 @@ fn misfit(
 /// `(x % 2, y % 2) == sub` take, in every exemplar's level, the k-coherence
 /// candidate whose neighbourhood best matches the blended neighbourhood
 /// around them, weighted by `coherence` towards the candidates their
-/// neighbours continue ([`ParallelSettings::coherence`]); the others keep theirs. Every pixel reads the levels as they
-/// were before the sub-pass, so the result does not depend on threads.
+/// neighbours continue ([`ParallelSettings::coherence`]); the others keep
+/// theirs. Every pixel reads the levels as they were before the sub-pass, so
+/// the result does not depend on threads.
 #[allow(clippy::too_many_arguments)]
 fn correct(
     lv: &Levels,
