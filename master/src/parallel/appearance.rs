@@ -6,6 +6,7 @@
 
 use anyhow::{ensure, Result};
 use nalgebra::{DMatrix, SymmetricEigen};
+use rayon::prelude::*;
 
 use crate::imaging::ColorImage;
 
@@ -107,6 +108,45 @@ impl Pca {
         })
     }
 
+    /// The appearance vectors of every pixel of `img`, row by row, each
+    /// from its 5×5 window with samples `step` apart (wrapping): what
+    /// [`Pca::project`] of [`descriptor_spaced`] gives, bit for bit, with
+    /// the components transposed so that each window is read once and every
+    /// component's sum runs in the same order.
+    pub fn project_image(&self, img: &ColorImage, step: usize) -> Vec<f64> {
+        let nc = self.components.len();
+        let dim = WINDOW * WINDOW * 3;
+        // Component values by descriptor entry: `t[j * nc + c]`.
+        let mut t = vec![0.0f64; dim * nc];
+        for (c, comp) in self.components.iter().enumerate() {
+            for (j, &v) in comp.iter().enumerate() {
+                t[j * nc + c] = v;
+            }
+        }
+        let rows = Rows {
+            img,
+            step,
+            mean: &self.mean,
+            t: &t,
+            nc,
+        };
+        #[cfg(target_arch = "x86_64")]
+        let avx2 = is_x86_feature_detected!("avx2");
+        let mut out = vec![0.0f64; img.width * img.height * nc];
+        out.par_chunks_mut(img.width * nc)
+            .enumerate()
+            .for_each(|(y, row)| {
+                #[cfg(target_arch = "x86_64")]
+                if avx2 {
+                    // SAFETY: the CPU has AVX2 (detected above).
+                    unsafe { rows.project_avx2(y, row) };
+                    return;
+                }
+                rows.project(y, row);
+            });
+        out
+    }
+
     /// The appearance vector of a descriptor.
     pub fn project(&self, d: &[f64]) -> Vec<f64> {
         self.components
@@ -119,6 +159,64 @@ impl Pca {
                     .sum()
             })
             .collect()
+    }
+}
+
+/// What [`Pca::project_image`] needs for one row.
+struct Rows<'a> {
+    img: &'a ColorImage,
+    step: usize,
+    mean: &'a [f64],
+    /// The components by descriptor entry: `t[j * nc + c]`.
+    t: &'a [f64],
+    nc: usize,
+}
+
+impl Rows<'_> {
+    /// Row `y`'s appearance vectors into `row`: per pixel the centred
+    /// window, then every component's sum over it in entry order (a
+    /// multiply and an add per entry, as [`Pca::project`] does).
+    #[inline(always)]
+    fn project(&self, y: usize, row: &mut [f64]) {
+        let (img, nc) = (self.img, self.nc);
+        let (w, h) = (img.width, img.height);
+        let r = (WINDOW / 2) as isize;
+        let wrap = |p: usize, d: isize, n: usize| {
+            (p as isize + d * self.step as isize).rem_euclid(n as isize) as usize
+        };
+        let ys: Vec<usize> = (-r..=r).map(|dy| wrap(y, dy, h)).collect();
+        let mut centred = [0.0f64; WINDOW * WINDOW * 3];
+        let mut acc = vec![0.0f64; nc];
+        for (x, px_out) in row.chunks_exact_mut(nc).enumerate() {
+            let mut j = 0;
+            for &yy in &ys {
+                for dx in -r..=r {
+                    for &ch in &img.get(wrap(x, dx, w), yy) {
+                        centred[j] = f64::from(ch) - self.mean[j];
+                        j += 1;
+                    }
+                }
+            }
+            // `Sum` of floats starts from −0.0, its identity.
+            acc.fill(-0.0);
+            for (j, &d) in centred.iter().enumerate() {
+                for (a, &cv) in acc.iter_mut().zip(&self.t[j * nc..(j + 1) * nc]) {
+                    *a += cv * d;
+                }
+            }
+            px_out.copy_from_slice(&acc);
+        }
+    }
+
+    /// [`Rows::project`] compiled for AVX2 (four components per operation;
+    /// no fused multiply-add, so the same bits).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn project_avx2(&self, y: usize, row: &mut [f64]) {
+        self.project(y, row);
     }
 }
 
@@ -143,6 +241,30 @@ mod tests {
                     let want = if i == j { 1.0 } else { 0.0 };
                     assert!((dot - want).abs() < 1e-9, "{i} {j} {dot}");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn the_whole_image_projection_is_the_per_pixel_one_bit_for_bit() {
+        let a = texture("brick_color_96.png");
+        let b = texture("pink_marble_color_128.png");
+        let pca = Pca::fit(&[&a, &b]).unwrap();
+        let nc = pca.components.len();
+        for (img, step) in [(&a, 1), (&a, 3), (&b, 7), (&b, 40)] {
+            let all = pca.project_image(img, step);
+            assert_eq!(all.len(), img.width * img.height * nc);
+            for (i, got) in all.chunks_exact(nc).enumerate() {
+                let (x, y) = (i % img.width, i / img.width);
+                let want = pca.project(&descriptor_spaced(img, x, y, step));
+                let same = got
+                    .iter()
+                    .zip(&want)
+                    .all(|(p, q)| p.to_bits() == q.to_bits());
+                assert!(
+                    same,
+                    "pixel ({x}, {y}) step {step}: {got:?} against {want:?}"
+                );
             }
         }
     }

@@ -45,6 +45,12 @@ const CELL: usize = 3;
 pub const EXACT_PIXELS: usize = 512 * 512;
 /// Queries per batch handed to the backend.
 const BATCH: usize = 8192;
+/// Every this many distinct vectors, one is searched to choose the first
+/// pass of a sharp level (see [`Candidates::search`]).
+const SAMPLE_EVERY: usize = 64;
+/// The short first pass is taken when at most one sampled set in this many
+/// falls short of k.
+const SHORT_SHARE: usize = 20;
 
 /// The candidate sets of one exemplar level: `k` per pixel, row by row.
 pub struct Candidates {
@@ -184,26 +190,10 @@ impl Candidates {
             })
             .collect();
         drop(distinct);
-        // Two passes, one answer. A pixel's set takes the first k entries of
-        // its list that are apart (`set_of`), so when the first `first_k`
-        // nearest already give k, the rest of the `extra` cannot change it:
-        // every vector is searched for its `first_k` nearest (a smaller ball,
-        // a cheaper proof), and only those whose sets fall short at some grid
-        // pixel are searched again for all `extra`. The sets are the ones a
-        // single search for `extra` gives. Where a pixel's own near-duplicate
-        // square on the grid holds `2k + 4` pixels or more (the blurred
-        // levels), its nearest are mostly those and nearly every set would
-        // need the second pass: one pass for `extra` there.
-        let dup_side = 2 * (radius as usize / stride) + 1;
-        let first_k = if dup_side * dup_side < 2 * k + 4 {
-            2 * k + 4
-        } else {
-            extra
-        }
-        .min(extra);
         let search = |backend: &mut dyn SearchBackend,
                       which: &[usize],
-                      want: usize|
+                      want: usize,
+                      report: bool|
          -> Result<Vec<Vec<u32>>> {
             let mut lists = Vec::with_capacity(which.len());
             for chunk in which.chunks(BATCH) {
@@ -215,34 +205,78 @@ impl Candidates {
                 for hits in backend.search_topk(&batch, want)? {
                     lists.push(hits.iter().map(|h| h.index as u32).collect());
                 }
-                progress.advance(chunk.len() as u64);
+                if report {
+                    progress.advance(chunk.len() as u64);
+                }
             }
             Ok(lists)
         };
-        let all: Vec<usize> = (0..vectors.len()).collect();
-        progress.start("k-coherence sets", vectors.len() as u64, "pixels");
-        let mut lists = search(backend, &all, first_k)?;
-        progress.finish();
         let grid_pos = |g: usize| {
             [
                 ((g % grid_w) * stride) as u32,
                 ((g / grid_w) * stride) as u32,
             ]
         };
+        // Whether the list of grid pixel `g` (of its vector) holds a whole set.
+        let whole = |g: usize, list: &[u32]| {
+            let refs = list.iter().map(|&r| grid_pos(r as usize));
+            apart(grid_pos(g), refs, k, radius, size).len() == k
+        };
+        // Two passes, one answer. A pixel's set takes the first k entries of
+        // its list that are apart (`set_of`), so when the first `first_k`
+        // nearest already give k, the rest of the `extra` cannot change it:
+        // every vector is searched for its `first_k` nearest (a smaller ball,
+        // a cheaper proof), and only those whose sets fall short at some grid
+        // pixel are searched again for all `extra`. The sets are the ones a
+        // single search for `extra` gives, whatever `first_k` is; it only
+        // decides the time:
+        // - where a pixel's own near-duplicate square on the grid holds
+        //   `2k + 4` pixels or more (the blurred levels), its nearest are
+        //   mostly those and nearly every set would need the second pass: one
+        //   pass for `extra` there;
+        // - else `k + 4` when a sample of every [`SAMPLE_EVERY`]-th vector
+        //   falls short at most once in [`SHORT_SHARE`] (the sharpest
+        //   levels), and `2k + 4` otherwise.
+        let dup_side = 2 * (radius as usize / stride) + 1;
+        let first_k = if dup_side * dup_side >= 2 * k + 4 {
+            extra
+        } else {
+            let sample: Vec<usize> = (0..vectors.len()).step_by(SAMPLE_EVERY).collect();
+            let lists = search(backend, &sample, k + 4, false)?;
+            let short = sample
+                .iter()
+                .zip(&lists)
+                .filter(|(&v, l)| !whole(first[v], l))
+                .count();
+            tracing::debug!(
+                short,
+                sample = sample.len(),
+                "k-coherence first pass sampled"
+            );
+            if short * SHORT_SHARE <= sample.len() {
+                k + 4
+            } else {
+                2 * k + 4
+            }
+        }
+        .min(extra);
+        let all: Vec<usize> = (0..vectors.len()).collect();
+        progress.start("k-coherence sets", vectors.len() as u64, "pixels");
+        let mut lists = search(backend, &all, first_k, true)?;
+        progress.finish();
         let mut again: Vec<usize> = (0..grid_w * grid_h)
             .into_par_iter()
             .filter(|_| first_k < extra)
             .filter_map(|g| {
                 let v = of_grid[g] as usize;
-                let refs = lists[v].iter().map(|&r| grid_pos(r as usize));
-                (apart(grid_pos(g), refs, k, radius, size).len() < k).then_some(v)
+                (!whole(g, &lists[v])).then_some(v)
             })
             .collect();
         again.sort_unstable();
         again.dedup();
         if !again.is_empty() {
             progress.start("k-coherence sets, wider", again.len() as u64, "pixels");
-            for (v, list) in again.iter().zip(search(backend, &again, extra)?) {
+            for (v, list) in again.iter().zip(search(backend, &again, extra, true)?) {
                 lists[*v] = list;
             }
             progress.finish();
@@ -479,7 +513,7 @@ mod tests {
             let q = |v: f32| ((v - lo) * 255.0 / (hi - lo)).round().clamp(0.0, 255.0) as i64;
             let dist = |a: usize, b: usize| -> i64 {
                 (0..SEARCH_DIMS)
-                    .map(|d| (q(used[a * 9 + d]) - q(used[b * 9 + d])).pow(2))
+                    .map(|d| (q(used[a * SEARCH_DIMS + d]) - q(used[b * SEARCH_DIMS + d])).pow(2))
                     .sum()
             };
             let refs: Vec<usize> = (0..h)

@@ -282,7 +282,9 @@ impl LevelExemplars {
         let mut cands = Vec::with_capacity(exemplars.len());
         let mut stride = 1;
         for (e, img) in exemplars.iter().enumerate() {
+            let started = std::time::Instant::now();
             let level_ex = ExemplarLevel::build(img, h, pca, points);
+            let analysed = started.elapsed().as_secs_f64();
             let of = SetsOf {
                 appearance: &level_ex.appearance,
                 size: (level_ex.width, level_ex.height),
@@ -300,6 +302,13 @@ impl LevelExemplars {
                 }
                 None => search()?,
             };
+            tracing::debug!(
+                level,
+                exemplar = e,
+                analysis = analysed,
+                sets = started.elapsed().as_secs_f64() - analysed,
+                "exemplar level timings (s)"
+            );
             if e == 0 {
                 stride = c.stride();
             }

@@ -4,7 +4,7 @@
 
 use rayon::prelude::*;
 
-use super::appearance::{descriptor_spaced, Pca};
+use super::appearance::Pca;
 use crate::imaging::ColorImage;
 
 /// Neighbourhood tables above this many floats are not kept; their entries
@@ -35,12 +35,7 @@ impl ExemplarLevel {
     pub(super) fn build(img: &ColorImage, h: usize, pca: &Pca, points: &[Vec<[i32; 2]>]) -> Self {
         let blur = blurred(img, h);
         let dims = pca.components.len();
-        let projected: Vec<f64> = (0..img.width * img.height)
-            .into_par_iter()
-            .flat_map_iter(|i| {
-                pca.project(&descriptor_spaced(&blur, i % img.width, i / img.width, h))
-            })
-            .collect();
+        let projected = pca.project_image(&blur, h);
         // Centred on the exemplar's own mean (see `morph`).
         let mut mean = vec![0.0f64; dims];
         for v in projected.chunks_exact(dims) {

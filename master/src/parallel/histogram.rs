@@ -42,15 +42,22 @@ impl Matching {
         let quantiles = (0..dims)
             .into_par_iter()
             .map(|c| {
-                let mut v: Vec<(f32, f64)> = Vec::new();
-                for (a, w) in sources {
+                // Each value with its source; within a source every value
+                // weighs the same, so ordering ties by source gives the
+                // stable sort's sequence of (value, weight).
+                let weight: Vec<f64> = sources
+                    .iter()
+                    .map(|(a, w)| w / (a.len() / dims).max(1) as f64)
+                    .collect();
+                let mut v: Vec<(f32, u32)> = Vec::new();
+                for (s, (a, w)) in sources.iter().enumerate() {
                     if *w <= 0.0 {
                         continue;
                     }
-                    let n = (a.len() / dims).max(1) as f64;
-                    v.extend(a.iter().skip(c).step_by(dims).map(|&x| (x, w / n)));
+                    v.extend(a.iter().skip(c).step_by(dims).map(|&x| (x, s as u32)));
                 }
-                v.sort_by(|a, b| a.0.total_cmp(&b.0));
+                v.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                let v: Vec<(f32, f64)> = v.iter().map(|&(x, s)| (x, weight[s as usize])).collect();
                 quantiles_of(&v)
             })
             .collect();
@@ -243,6 +250,34 @@ mod tests {
         // Half the strength goes half the way.
         m.apply(&raw, 0.5, &mut out);
         assert!((out[0] - 0.5 * (0.0 - 500.0)).abs() < 3.0, "{}", out[0]);
+    }
+
+    #[test]
+    fn the_quantiles_are_the_stable_sort_s_with_ties_across_sources() {
+        // Two components; values that tie within and across sources, whose
+        // per-value weights differ (1/700 against 3/300), and a source of
+        // weight 0 that must not count.
+        let a: Vec<f32> = (0..1400).map(|i| (i % 7) as f32 * 0.5).collect();
+        let b: Vec<f32> = (0..600).map(|i| (i % 5) as f32 * 0.75).collect();
+        let z: Vec<f32> = vec![100.0; 40];
+        let sources: [(&[f32], f64); 3] = [(&a, 1.0), (&z, 0.0), (&b, 3.0)];
+        let m = Matching::new(2, &sources);
+        for c in 0..2 {
+            let mut v: Vec<(f32, f64)> = Vec::new();
+            for (s, w) in &sources {
+                if *w > 0.0 {
+                    let n = (s.len() / 2) as f64;
+                    v.extend(s.iter().skip(c).step_by(2).map(|&x| (x, w / n)));
+                }
+            }
+            v.sort_by(|p, q| p.0.total_cmp(&q.0));
+            let want = quantiles_of(&v);
+            let same = m.quantiles[c]
+                .iter()
+                .zip(&want)
+                .all(|(p, q)| p.to_bits() == q.to_bits());
+            assert!(same, "component {c}");
+        }
     }
 
     #[test]

@@ -16,7 +16,7 @@
 
 use rayon::prelude::*;
 
-use crate::kernel::Params;
+use crate::kernel::{Kernel, Params};
 use crate::layout::{Layout, Metric};
 use crate::merge::Hit;
 
@@ -120,6 +120,7 @@ impl KdTree {
         range: std::ops::Range<u64>,
         k: usize,
         worst: &[u64],
+        kernel: Kernel,
     ) -> Vec<Vec<Hit>> {
         let weight: Vec<u64> = self
             .hi_part
@@ -138,6 +139,13 @@ impl KdTree {
             .first()
             .copied()
             .filter(|w| weight.iter().all(|x| x == w));
+        #[cfg(target_arch = "x86_64")]
+        if matches!(kernel, Kernel::Avx2 | Kernel::Avx512) {
+            assert!(
+                crate::kernel::x86::has_avx2(),
+                "AVX2 tree search on a CPU without AVX2"
+            );
+        }
         // Every vector of the tree in range: no per-vector range test.
         let whole = range.start <= self.span.start && self.span.end <= range.end;
         queries
@@ -160,8 +168,14 @@ impl KdTree {
                     worst,
                     list: Vec::with_capacity(k + 1),
                 };
-                if s.box_bound(0) <= s.limit() {
-                    s.visit(0);
+                match kernel {
+                    #[cfg(target_arch = "x86_64")]
+                    Kernel::Avx2 | Kernel::Avx512 => {
+                        // SAFETY: the CPU has AVX2 (asserted above); the
+                        // traversal is safe code compiled for it.
+                        unsafe { s.run_avx2() }
+                    }
+                    _ => s.run(),
                 }
                 s.list
             })
@@ -293,29 +307,55 @@ impl Search<'_> {
         }
     }
 
-    /// Visits node `n`, whose box may hold a vector within the limit: its
-    /// children nearer box first, each only while its box still may.
-    fn visit(&mut self, n: u32) {
-        let node = self.tree.nodes[n as usize];
-        if node.left == NONE {
-            self.leaf(node.lo as usize..node.hi as usize);
+    /// The search from the root: depth first, each node's children nearer
+    /// box first, a node visited only while its box may still hold a vector
+    /// within the limit (the limit tightens as the list fills, so a far
+    /// child is tested again when its turn comes).
+    #[inline(always)]
+    fn run(&mut self) {
+        let root = self.box_bound(0);
+        // Equal to the limit may still win on a lower index.
+        if root > self.limit() {
             return;
         }
-        let (a, b) = (self.box_bound(node.left), self.box_bound(node.right));
-        let ((near, dn), (far, df)) = if a <= b {
-            ((node.left, a), (node.right, b))
-        } else {
-            ((node.right, b), (node.left, a))
-        };
-        // Equal to the limit may still win on a lower index.
-        if dn <= self.limit() {
-            self.visit(near);
-        }
-        if df <= self.limit() {
-            self.visit(far);
+        let mut stack: Vec<(u32, u64)> = Vec::with_capacity(64);
+        stack.push((0, root));
+        while let Some((n, bound)) = stack.pop() {
+            if bound > self.limit() {
+                continue;
+            }
+            let node = self.tree.nodes[n as usize];
+            if node.left == NONE {
+                self.leaf(node.lo as usize..node.hi as usize);
+                continue;
+            }
+            let (a, b) = (self.box_bound(node.left), self.box_bound(node.right));
+            let ((near, dn), (far, df)) = if a <= b {
+                ((node.left, a), (node.right, b))
+            } else {
+                ((node.right, b), (node.left, a))
+            };
+            if df <= self.limit() {
+                stack.push((far, df));
+            }
+            if dn <= self.limit() {
+                stack.push((near, dn));
+            }
         }
     }
 
+    /// [`Search::run`] compiled for AVX2: the box bounds and leaf distances
+    /// of 16 bytes become whole-register operations.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn run_avx2(&mut self) {
+        self.run();
+    }
+
+    #[inline(always)]
     fn leaf(&mut self, span: std::ops::Range<usize>) {
         let dims = self.tree.dims;
         for p in span {

@@ -588,7 +588,7 @@ impl Engine {
         if let Some(tree) = self.tree_for(space, queries) {
             let _busy = Timer::busy();
             let qs: Vec<&[u8]> = (0..nq).map(|q| queries.values(q)).collect();
-            return Ok(tree.search_topk(&qs, params, range, k, &worst));
+            return Ok(tree.search_topk(&qs, params, range, k, &worst, self.kernel));
         }
         let parts: Vec<Vec<Vec<Hit>>> = self
             .chunks(&range)

@@ -4,7 +4,9 @@
 //! near-ties, and a space split between searchers under top-k cuts.
 
 use proptest::prelude::*;
-use texsyn_engine::{Engine, Layout, Metric, Params, QueryBatch, Slack, VectorSpace, Weights};
+use texsyn_engine::{
+    Engine, Kernel, Layout, Metric, Params, QueryBatch, Slack, VectorSpace, Weights,
+};
 
 /// `n` vectors of `dims` components from a small alphabet (so distances tie).
 fn vectors(n: usize, dims: usize, levels: u8, seed: u64) -> Vec<u8> {
@@ -63,9 +65,16 @@ proptest! {
         };
         let tree = Engine::default();
         let scan = Engine::default().with_pruning(false);
+        // The tree's traversal compiled for each kernel of this CPU (the
+        // portable one and the SIMD ones) gives the same lists.
+        let trees: Vec<Engine> = Kernel::available().into_iter().map(Engine::new).collect();
         for range in [0..n as u64, cut as u64..n as u64 - 500] {
-            let a = tree.search_topk(&space, range.clone(), &queries, &params, k).unwrap();
             let b = scan.search_topk(&space, range.clone(), &queries, &params, k).unwrap();
+            for t in &trees {
+                let a = t.search_topk(&space, range.clone(), &queries, &params, k).unwrap();
+                prop_assert_eq!(&a, &b, "kernel {:?}", t.kernel());
+            }
+            let a = tree.search_topk(&space, range.clone(), &queries, &params, k).unwrap();
             prop_assert_eq!(&a, &b);
             let slack = vec![Slack { absolute: 40, per_mille: 100 }; queries.len()];
             let a = tree.search_near_ties(&space, range.clone(), &queries, &params, k, &slack).unwrap();
