@@ -484,6 +484,14 @@ fn a_candidate_cache_is_filled_once_and_changes_no_byte() {
     for (f, t) in stored.iter().zip(&times) {
         assert_eq!(std::fs::metadata(f).unwrap().modified().unwrap(), *t);
     }
+    // Levels left uncorrected search no sets: 7×7 reaches 3 steps, so on an
+    // 82² exemplar only the steps with 6h below 41 (4, 2, 1) are corrected.
+    let wide = d("kc7");
+    morph(
+        "seven.png",
+        &["--neighbourhood", "7", "--candidate-cache", s(&wide)],
+    );
+    assert_eq!(std::fs::read_dir(&wide).unwrap().count(), 2 * 3);
     // A damaged file is searched again: same output, file rewritten.
     std::fs::write(&stored[0], b"damaged").unwrap();
     let again = morph("again.png", &["--candidate-cache", s(&cache)]);

@@ -257,22 +257,23 @@ pub(super) fn check_exemplar(e: &ColorImage, what: &str) -> Result<()> {
 pub(super) struct LevelExemplars {
     pub ex: Vec<ExemplarLevel>,
     pub cands: Vec<(usize, Vec<[u32; 2]>)>,
-    /// Grid stride of the first exemplar's candidate sets.
+    /// Grid stride of the first exemplar's candidate sets (0: none searched).
     pub stride: usize,
 }
 
 impl LevelExemplars {
-    /// Builds the level of step `h` of every exemplar and searches its
-    /// candidate sets through `backend` (exemplar `e` of `level` is the
+    /// Builds the level of step `h` of every exemplar and, with `k`, searches
+    /// its candidate sets through `backend` (exemplar `e` of `level` is the
     /// backend's level `level · exemplars + e`: a worker keeps one level per
     /// number), or reads them from `cache` when an earlier run stored them.
+    /// Without `k` (a level not corrected) the sets are empty.
     #[allow(clippy::too_many_arguments)]
     fn build(
         exemplars: &[&ColorImage],
         h: usize,
         pca: &Pca,
         points: &[Vec<[i32; 2]>],
-        k: usize,
+        k: Option<usize>,
         level: usize,
         cache: Option<&CandidateCache>,
         backend: &mut dyn SearchBackend,
@@ -280,11 +281,16 @@ impl LevelExemplars {
     ) -> Result<Self> {
         let mut ex = Vec::with_capacity(exemplars.len());
         let mut cands = Vec::with_capacity(exemplars.len());
-        let mut stride = 1;
+        let mut stride = 0;
         for (e, img) in exemplars.iter().enumerate() {
             let started = std::time::Instant::now();
             let level_ex = ExemplarLevel::build(img, h, pca, points);
             let analysed = started.elapsed().as_secs_f64();
+            let Some(k) = k else {
+                ex.push(level_ex);
+                cands.push((1, Vec::new()));
+                continue;
+            };
             let of = SetsOf {
                 appearance: &level_ex.appearance,
                 size: (level_ex.width, level_ex.height),
@@ -354,13 +360,19 @@ pub(super) fn run_levels<L: Lattice>(
     let mut strides = Vec::with_capacity(levels);
     for level in 0..levels {
         let h = 1usize << (levels - 1 - level);
+        let passes = if corrected(&points, h, smallest_side(exemplars), s.every_level) {
+            s.passes
+        } else {
+            0
+        };
         let t = std::time::Instant::now();
+        // A level without correction reads no candidate: none are searched.
         let ex = LevelExemplars::build(
             exemplars,
             h,
             pca,
             &points,
-            s.k,
+            (passes > 0).then_some(s.k),
             level,
             s.cache.as_ref(),
             backend,
@@ -370,11 +382,6 @@ pub(super) fn run_levels<L: Lattice>(
         let t_exemplars = t.elapsed().as_secs_f64();
         lattice.prepare(level, h, jitter_at(s, level));
         let t = std::time::Instant::now();
-        let passes = if corrected(&points, h, smallest_side(exemplars), s.every_level) {
-            s.passes
-        } else {
-            0
-        };
         progress.start(
             &format!("level {}/{levels}", level + 1),
             (passes * L::SUB_PASSES) as u64,
