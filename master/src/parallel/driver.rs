@@ -136,9 +136,9 @@ pub const DEFAULT_HISTOGRAM: f32 = 1.0;
 /// 1.47 → 1.37, leaves 1.34 → 1.27, brick 96 1.32 → 1.25) for about 1.3×
 /// the time. For 5×5 4 (with [`default_jitter`]): on the 22 samples up to
 /// 256² at 2× their side its fidelity ratio was within 1.3 on 15 with 3
-/// passes and on 18 with 4. For `reduced` and `half`, with
-/// their coherence weight ([`default_coherence`]), 4 in a synthesis: on
-/// the 22 samples up to 256² at 2× their side the median fidelity ratio
+/// passes and on 18 with 4. For `reduced` and `half`, with their coherence
+/// weight ([`default_coherence`]), 4 in a synthesis: on the 22 samples up
+/// to 256² at 2× their side the median fidelity ratio
 /// to the block method fell from 1.50 (2 passes) to 1.37 (`reduced`); a
 /// morph (`morph`) keeps the paper's 2, which keeps a cached 512² morph
 /// under 2 and 3 s.

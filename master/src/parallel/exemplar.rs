@@ -193,8 +193,6 @@ impl ExemplarLevel {
     }
 }
 
-/// A blur of the exemplar for the stack level of step `h`: a wrapping box
-/// of radius `h/2` ([`crate::filters::box_blur_rgb`]).
 /// The bases of k-coherence at a pixel, each with the number of its 3×3
 /// neighbours (itself included) whose coordinates shift back to it.
 pub(super) struct Bases {
@@ -217,6 +215,8 @@ impl Bases {
     }
 }
 
+/// A blur of the exemplar for the stack level of step `h`: a wrapping box
+/// of radius `h/2` ([`crate::filters::box_blur_rgb`]).
 pub(super) fn blurred(img: &ColorImage, h: usize) -> ColorImage {
     crate::filters::box_blur_rgb(img, if h <= 1 { 0 } else { h / 2 })
 }

@@ -38,7 +38,7 @@ pub(super) struct Volume<'a> {
     /// Strength of the histogram matching.
     pub histogram: f32,
     /// Coherence weight of the correction's choice
-    /// ([`crate::parallel::synth::ParallelSettings::coherence`]).
+    /// ([`crate::parallel::driver::ParallelSettings::coherence`]).
     pub coherence: f32,
     pub dims: usize,
     /// Per material, its weight at every voxel of the full size (several
