@@ -12,7 +12,7 @@
 use anyhow::{bail, ensure, Context, Result};
 
 use super::pattern::Pattern;
-use super::shaders::{by_name, Layout, Shader};
+use super::shaders::{by_name, Shader};
 
 /// A match's count may differ from the label's by this share.
 pub const COUNT_TOLERANCE: f64 = 0.15;
@@ -80,13 +80,7 @@ pub fn parse(text: &str) -> Result<Vec<Label>> {
 /// The count a pattern shows per unit (the unit square spans the analysed
 /// square): its rows, lines or scattered features, by its layout.
 pub fn count_of(shader: &Shader, params: &[f64]) -> Option<f64> {
-    let i = match shader.layout {
-        Layout::Free => return None,
-        Layout::Rows { count, .. } | Layout::Lines { count, .. } | Layout::Scatter { count } => {
-            count
-        }
-    };
-    params.get(i).copied()
+    params.get(shader.layout.count()?).copied()
 }
 
 /// A match judged against its label.

@@ -11,7 +11,7 @@ use argmin::solver::neldermead::NelderMead;
 use rayon::prelude::*;
 
 use super::objective::{evaluate, Eval, Problem, Target};
-use super::shaders::{Kind, Layout, Shader};
+use super::shaders::{Kind, Shader};
 
 /// Nelder–Mead (argmin) on `problem` from the unit-box point `x0`: the
 /// first simplex steps `step` along each axis (inwards at the upper edge);
@@ -211,12 +211,7 @@ pub(super) fn refine_with_integers(
     let ints: Vec<usize> = (0..shader.params.len())
         .filter(|&i| shader.params[i].kind == Kind::Integer)
         .collect();
-    let count = match shader.layout {
-        Layout::Free => None,
-        Layout::Rows { count, .. } | Layout::Lines { count, .. } | Layout::Scatter { count } => {
-            Some(count)
-        }
-    };
+    let count = shader.layout.count();
     for _round in 0..effort.integer_rounds {
         let mut improved = false;
         for &i in &ints {

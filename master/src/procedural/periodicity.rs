@@ -24,6 +24,14 @@ const PROMINENCE: f64 = 0.08;
 /// the direction (a weaker earlier bump is texture within the period).
 const FIRST_PEAK_SHARE: f64 = 0.6;
 
+/// The directions [`Periodicity::across`] chooses from repeat at least
+/// this share of the strongest one's strength. Along a grid's axis the lag
+/// runs inside the other axis's ridge, so the rise above the lows is half
+/// or less of an oblique direction's: a higher share left only oblique
+/// directions, whose crossings of the rows come at the row period over the
+/// sine (a 24-row facade read as 20 rows at 60°).
+const ACROSS_SHARE: f64 = 0.5;
+
 /// A target whose tones' separation ([`super::pieces`]) reaches this shows
 /// scattered features: a scattered shader's count is seeded from its pieces.
 pub const SCATTERED: f64 = 0.5;
@@ -136,7 +144,7 @@ impl Periodicity {
             .lines
             .iter()
             .enumerate()
-            .filter(|(_, p)| p.strength >= 0.7 * top.strength)
+            .filter(|(_, p)| p.strength >= ACROSS_SHARE * top.strength)
             .min_by(|a, b| a.1.period.total_cmp(&b.1.period).then(a.0.cmp(&b.0)))?;
         Some((180.0 * k as f64 / DIRECTIONS as f64, *p))
     }
@@ -319,9 +327,16 @@ fn first_peak(p: &[f64]) -> Peak {
     } else {
         0.0
     };
+    // ...and its height by the parabola's vertex: a peak narrower than a
+    // few pixels (a fine grid's) falls between the samples.
+    let top = if den < -1e-12 {
+        b - 0.125 * (a - c) * (a - c) / den
+    } else {
+        b
+    };
     Peak {
         period: r as f64 + shift,
-        strength: rise,
+        strength: rise + (top - b),
     }
 }
 

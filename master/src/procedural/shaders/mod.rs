@@ -112,6 +112,19 @@ pub enum Layout {
     Scatter { count: usize },
 }
 
+impl Layout {
+    /// The index of the parameter that counts rows, lines or features per
+    /// unit; `None` for noise.
+    pub fn count(self) -> Option<usize> {
+        match self {
+            Self::Free => None,
+            Self::Rows { count, .. } | Self::Lines { count, .. } | Self::Scatter { count } => {
+                Some(count)
+            }
+        }
+    }
+}
+
 /// A procedural shader: declared parameters and its pattern.
 pub struct Shader {
     pub name: &'static str,
