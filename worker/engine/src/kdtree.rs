@@ -45,7 +45,6 @@ const NONE: u32 = u32::MAX;
 /// the nodes (the root is node 0).
 #[derive(Debug, Clone)]
 pub(crate) struct KdTree {
-    dims: usize,
     /// Whether component `d` belongs to the hi part (else the lo part).
     hi_part: Vec<bool>,
     /// Padded offset of component `d` in a query.
@@ -92,7 +91,6 @@ impl KdTree {
             .collect();
         let index = order.iter().map(|&i| start + u64::from(i)).collect();
         Self {
-            dims,
             hi_part,
             offset,
             points,
@@ -140,11 +138,19 @@ impl KdTree {
             .copied()
             .filter(|w| weight.iter().all(|x| x == w));
         #[cfg(target_arch = "x86_64")]
-        if matches!(kernel, Kernel::Avx2 | Kernel::Avx512) {
-            assert!(
-                crate::kernel::x86::has_avx2(),
-                "AVX2 tree search on a CPU without AVX2"
-            );
+        {
+            if matches!(kernel, Kernel::Avx2 | Kernel::Avx512) {
+                assert!(
+                    crate::kernel::x86::has_avx2(),
+                    "AVX2 tree search on a CPU without AVX2"
+                );
+            }
+            if kernel == Kernel::Avx512 {
+                assert!(
+                    crate::kernel::x86::has_avx512(),
+                    "AVX-512 tree search on a CPU without AVX-512"
+                );
+            }
         }
         // Every vector of the tree in range: no per-vector range test.
         let whole = range.start <= self.span.start && self.span.end <= range.end;
@@ -152,6 +158,10 @@ impl KdTree {
             .par_iter()
             .zip(worst)
             .map(|(q, &worst)| {
+                if worst == 0 {
+                    // Nothing is below a cut of 0.
+                    return Vec::new();
+                }
                 let mut q16 = [0u8; MAX_DIMS];
                 for (slot, &o) in q16.iter_mut().zip(&self.offset) {
                     *slot = q[o];
@@ -161,21 +171,18 @@ impl KdTree {
                     whole,
                     q: &q16,
                     weight: &weight,
-                    uniform,
-                    metric: params.metric,
+                    uniform: uniform.unwrap_or(0),
                     range: range.clone(),
                     k,
-                    worst,
+                    limit: worst.saturating_sub(1),
                     list: Vec::with_capacity(k + 1),
+                    stack: Vec::with_capacity(64),
                 };
-                match kernel {
-                    #[cfg(target_arch = "x86_64")]
-                    Kernel::Avx2 | Kernel::Avx512 => {
-                        // SAFETY: the CPU has AVX2 (asserted above); the
-                        // traversal is safe code compiled for it.
-                        unsafe { s.run_avx2() }
-                    }
-                    _ => s.run(),
+                match (params.metric, uniform.is_some()) {
+                    (Metric::L1, true) => s.run::<L1, true>(kernel),
+                    (Metric::L1, false) => s.run::<L1, false>(kernel),
+                    (Metric::L2, true) => s.run::<L2, true>(kernel),
+                    (Metric::L2, false) => s.run::<L2, false>(kernel),
                 }
                 s.list
             })
@@ -242,6 +249,11 @@ fn split(
     me
 }
 
+/// The metric as a type-level switch of [`Search`]: `L2` squares the
+/// gaps, `L1` sums them.
+const L1: bool = false;
+const L2: bool = true;
+
 /// One query's search.
 struct Search<'a> {
     tree: &'a KdTree,
@@ -250,33 +262,126 @@ struct Search<'a> {
     /// The query's components, zero-padded like the points.
     q: &'a [u8; MAX_DIMS],
     weight: &'a [u64],
-    /// The weight of every component, when they all have the same.
-    uniform: Option<u64>,
-    metric: Metric,
+    /// The weight of every component, when they all have the same (the
+    /// `UNIFORM` searches; else unused).
+    uniform: u64,
     range: std::ops::Range<u64>,
     k: usize,
-    worst: u64,
+    /// Largest distance a vector may have and still enter the list: the
+    /// k-th best's once the list is full, else one below the query's
+    /// `worst` (equal to the limit may still win on a lower index).
+    limit: u64,
     /// The best so far, sorted by (distance, index).
     list: Vec<Hit>,
+    /// Farther children still to visit, with their bounds.
+    stack: Vec<(u32, u64)>,
 }
 
 impl Search<'_> {
+    /// The search, compiled for the engine's kernel's instruction set
+    /// (AVX2 or AVX-512, which the caller checked the CPU for): the box
+    /// bounds and leaf distances of 16 bytes become whole-register
+    /// operations, and the answers do not depend on it.
     #[inline(always)]
-    fn term(&self, d: usize, gap: u64) -> u64 {
-        self.weight[d]
-            * match self.metric {
-                Metric::L1 => gap,
-                Metric::L2 => gap * gap,
-            }
+    fn run<const SQUARED: bool, const UNIFORM: bool>(&mut self, kernel: Kernel) {
+        match kernel {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the CPU has AVX2 (asserted by the caller); the
+            // traversal is safe code compiled for it.
+            Kernel::Avx2 => unsafe { self.descend_avx2::<SQUARED, UNIFORM>() },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the CPU has AVX-512 (asserted by the caller).
+            Kernel::Avx512 => unsafe { self.descend_avx512::<SQUARED, UNIFORM>() },
+            _ => self.descend::<SQUARED, UNIFORM>(),
+        }
     }
 
-    /// Largest distance a vector may have and still enter the list.
+    /// [`Search::descend`] compiled for AVX2.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn descend_avx2<const SQUARED: bool, const UNIFORM: bool>(&mut self) {
+        self.descend::<SQUARED, UNIFORM>();
+    }
+
+    /// [`Search::descend`] compiled for AVX-512.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 (F, BW, VL).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
+    unsafe fn descend_avx512<const SQUARED: bool, const UNIFORM: bool>(&mut self) {
+        self.descend::<SQUARED, UNIFORM>();
+    }
+
+    /// The search from the root: depth first, down the nearer box's child
+    /// at each split with the farther one stacked, a node visited only
+    /// while its box may still hold a vector within the limit (the limit
+    /// tightens as the list fills, so a stacked child is tested again when
+    /// its turn comes).
     #[inline(always)]
-    fn limit(&self) -> u64 {
-        if self.list.len() == self.k {
-            self.list[self.k - 1].dist
+    fn descend<const SQUARED: bool, const UNIFORM: bool>(&mut self) {
+        if self.box_bound::<SQUARED, UNIFORM>(0) > self.limit {
+            return;
+        }
+        let mut next = Some(0u32);
+        while let Some(mut n) = next.take().or_else(|| self.pop()) {
+            loop {
+                let node = self.tree.nodes[n as usize];
+                if node.left == NONE {
+                    self.leaf::<SQUARED, UNIFORM>(node.lo as usize..node.hi as usize);
+                    break;
+                }
+                let a = self.box_bound::<SQUARED, UNIFORM>(node.left);
+                let b = self.box_bound::<SQUARED, UNIFORM>(node.right);
+                let ((near, dn), (far, df)) = if a <= b {
+                    ((node.left, a), (node.right, b))
+                } else {
+                    ((node.right, b), (node.left, a))
+                };
+                if dn > self.limit {
+                    break;
+                }
+                if df <= self.limit {
+                    self.stack.push((far, df));
+                }
+                n = near;
+            }
+        }
+    }
+
+    /// The next stacked node whose bound is still within the limit.
+    #[inline(always)]
+    fn pop(&mut self) -> Option<u32> {
+        while let Some((n, bound)) = self.stack.pop() {
+            if bound <= self.limit {
+                return Some(n);
+            }
+        }
+        None
+    }
+
+    /// `Σ g` (L1) or `Σ g²` (L2) over the padded component gaps `g`,
+    /// weighted per component or by the one weight (the padding is zero in
+    /// both the query and the tree, so it adds nothing).
+    #[inline(always)]
+    fn weighted<const SQUARED: bool, const UNIFORM: bool>(&self, g: &[u8; MAX_DIMS]) -> u64 {
+        if UNIFORM {
+            let mut sum = 0u32;
+            for &x in g {
+                let x = u32::from(x);
+                sum += if SQUARED { x * x } else { x };
+            }
+            self.uniform * u64::from(sum)
         } else {
-            self.worst.saturating_sub(1)
+            let mut sum = 0u64;
+            for (&w, &x) in self.weight.iter().zip(g) {
+                let x = u64::from(x);
+                sum += w * if SQUARED { x * x } else { x };
+            }
+            sum
         }
     }
 
@@ -285,100 +390,28 @@ impl Search<'_> {
     /// its splits bound (Arya and Mount's incremental bound), since the box
     /// lies inside the cell.
     #[inline(always)]
-    fn box_bound(&self, n: u32) -> u64 {
+    fn box_bound<const SQUARED: bool, const UNIFORM: bool>(&self, n: u32) -> u64 {
         let [lo, hi] = &self.tree.boxes[n as usize];
-        let gap = |d: usize| lo[d].saturating_sub(self.q[d]) | self.q[d].saturating_sub(hi[d]);
-        match self.uniform {
-            // The padding is zero in the box and the query, so it adds nothing.
-            Some(w) => {
-                let mut sum = 0u32;
-                for d in 0..MAX_DIMS {
-                    let g = u32::from(gap(d));
-                    sum += match self.metric {
-                        Metric::L1 => g,
-                        Metric::L2 => g * g,
-                    };
-                }
-                w * u64::from(sum)
-            }
-            None => (0..self.tree.dims)
-                .map(|d| self.term(d, u64::from(gap(d))))
-                .sum(),
+        let mut gap = [0u8; MAX_DIMS];
+        for d in 0..MAX_DIMS {
+            gap[d] = lo[d].saturating_sub(self.q[d]) | self.q[d].saturating_sub(hi[d]);
         }
-    }
-
-    /// The search from the root: depth first, each node's children nearer
-    /// box first, a node visited only while its box may still hold a vector
-    /// within the limit (the limit tightens as the list fills, so a far
-    /// child is tested again when its turn comes).
-    #[inline(always)]
-    fn run(&mut self) {
-        let root = self.box_bound(0);
-        // Equal to the limit may still win on a lower index.
-        if root > self.limit() {
-            return;
-        }
-        let mut stack: Vec<(u32, u64)> = Vec::with_capacity(64);
-        stack.push((0, root));
-        while let Some((n, bound)) = stack.pop() {
-            if bound > self.limit() {
-                continue;
-            }
-            let node = self.tree.nodes[n as usize];
-            if node.left == NONE {
-                self.leaf(node.lo as usize..node.hi as usize);
-                continue;
-            }
-            let (a, b) = (self.box_bound(node.left), self.box_bound(node.right));
-            let ((near, dn), (far, df)) = if a <= b {
-                ((node.left, a), (node.right, b))
-            } else {
-                ((node.right, b), (node.left, a))
-            };
-            if df <= self.limit() {
-                stack.push((far, df));
-            }
-            if dn <= self.limit() {
-                stack.push((near, dn));
-            }
-        }
-    }
-
-    /// [`Search::run`] compiled for AVX2: the box bounds and leaf distances
-    /// of 16 bytes become whole-register operations.
-    ///
-    /// # Safety
-    /// The CPU must have AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn run_avx2(&mut self) {
-        self.run();
+        self.weighted::<SQUARED, UNIFORM>(&gap)
     }
 
     #[inline(always)]
-    fn leaf(&mut self, span: std::ops::Range<usize>) {
-        let dims = self.tree.dims;
+    fn leaf<const SQUARED: bool, const UNIFORM: bool>(&mut self, span: std::ops::Range<usize>) {
         for p in span {
             if !self.whole && !self.range.contains(&self.tree.index[p]) {
                 continue;
             }
-            let limit = self.limit();
             let v = &self.tree.points[p];
-            let dist = match self.uniform {
-                // The padding is zero in both, so it adds nothing.
-                Some(w) => w * u64::from(padded_sum(v, self.q, self.metric)),
-                None => {
-                    let mut dist = 0u64;
-                    for (d, (&a, &b)) in v[..dims].iter().zip(self.q).enumerate() {
-                        dist += self.term(d, u64::from(a.abs_diff(b)));
-                        if dist > limit {
-                            break;
-                        }
-                    }
-                    dist
-                }
-            };
-            if dist > limit || dist >= self.worst {
+            let mut gap = [0u8; MAX_DIMS];
+            for d in 0..MAX_DIMS {
+                gap[d] = v[d].abs_diff(self.q[d]);
+            }
+            let dist = self.weighted::<SQUARED, UNIFORM>(&gap);
+            if dist > self.limit {
                 continue;
             }
             let hit = Hit {
@@ -393,28 +426,9 @@ impl Search<'_> {
             }
             let at = self.list.partition_point(|h| h.key() < hit.key());
             self.list.insert(at, hit);
-        }
-    }
-}
-
-/// `Σ |a − b|` (L1) or `Σ (a − b)²` (L2) over two padded vectors: a loop of
-/// fixed length over bytes, which the compiler turns into a few vector
-/// instructions.
-#[inline(always)]
-fn padded_sum(a: &[u8; MAX_DIMS], b: &[u8; MAX_DIMS], metric: Metric) -> u32 {
-    let mut sum = 0u32;
-    match metric {
-        Metric::L1 => {
-            for i in 0..MAX_DIMS {
-                sum += u32::from(a[i].abs_diff(b[i]));
-            }
-        }
-        Metric::L2 => {
-            for i in 0..MAX_DIMS {
-                let d = u32::from(a[i].abs_diff(b[i]));
-                sum += d * d;
+            if self.list.len() == self.k {
+                self.limit = self.list[self.k - 1].dist;
             }
         }
     }
-    sum
 }
