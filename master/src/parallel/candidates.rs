@@ -41,7 +41,11 @@ const CELL: usize = 3;
 /// on a grid of the smallest stride that fits, queries and references alike,
 /// and pixel `q` takes its grid pixel `g`'s list shifted by `q − g` (the
 /// shift of k-coherence itself): the exact search of a 1024² level took
-/// minutes on 2 cores.
+/// minutes on 2 cores. The stride is at least the level's near-duplicate
+/// radius: on a level blurred over `h` pixels the pixels within `h/2` of one
+/// another are one candidate, so a reference per such square keeps every
+/// candidate a set could take (a 1024² exemplar's blurred levels: strides 4
+/// to 64 where 2 searched 262 144 vectors each).
 pub const EXACT_PIXELS: usize = 512 * 512;
 /// Queries per batch handed to the backend.
 const BATCH: usize = 8192;
@@ -112,10 +116,7 @@ impl Candidates {
         } = *of;
         ensure!((1..=MAX_K).contains(&k), "k must be in 1..={MAX_K}");
         ensure!(appearance.len() == width * height * dims, "appearance size");
-        let large = ((width * height) as f64 / EXACT_PIXELS as f64)
-            .sqrt()
-            .ceil() as usize;
-        let stride = spacing.stride.max(large).clamp(1, width.min(height));
+        let stride = grid_stride((width, height), spacing);
         let (grid_w, grid_h) = (width.div_ceil(stride), height.div_ceil(stride));
         let used = dims.min(SEARCH_DIMS);
         let (lo, hi) = appearance
@@ -368,6 +369,21 @@ impl Candidates {
     }
 }
 
+/// The stride of the grid a `size` level with `spacing` is searched on:
+/// the spacing's, or on a level over [`EXACT_PIXELS`] the smallest that
+/// fits and at least the near-duplicate radius.
+fn grid_stride((width, height): (usize, usize), spacing: Spacing) -> usize {
+    let large = ((width * height) as f64 / EXACT_PIXELS as f64)
+        .sqrt()
+        .ceil() as usize;
+    let large = if large > 1 {
+        large.max(spacing.radius as usize)
+    } else {
+        large
+    };
+    spacing.stride.max(large).clamp(1, width.min(height))
+}
+
 /// The smallest square window of grid pixels around grid pixel `g`
 /// (wrapping, `g` included) that holds `n` pixels: on a coherent level its
 /// nearest neighbours in appearance are among them, so their distances give
@@ -501,52 +517,102 @@ mod tests {
                 k,
             };
             let c = Candidates::search(&of, 0, &mut backend, &crate::progress::Silent).unwrap();
-            let stride = spacing.stride;
-            assert_eq!(c.stride(), stride);
-            let used: Vec<f32> = app
-                .chunks_exact(dims)
-                .flat_map(|v| v[..SEARCH_DIMS].to_vec())
-                .collect();
-            let (lo, hi) = used
-                .iter()
-                .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
-            let q = |v: f32| ((v - lo) * 255.0 / (hi - lo)).round().clamp(0.0, 255.0) as i64;
-            let dist = |a: usize, b: usize| -> i64 {
-                (0..SEARCH_DIMS)
-                    .map(|d| (q(used[a * SEARCH_DIMS + d]) - q(used[b * SEARCH_DIMS + d])).pow(2))
-                    .sum()
-            };
-            let refs: Vec<usize> = (0..h)
-                .step_by(stride)
-                .flat_map(|y| (0..w).step_by(stride).map(move |x| y * w + x))
-                .collect();
-            for p in (0..w * h).step_by(37).chain([17, 555, 1199, 4799]) {
-                let (x, y) = (p % w, p / w);
-                // The grid pixel the query is searched from, and the shift.
-                let g = y / stride * stride * w + x / stride * stride;
-                let (dx, dy) = (x % stride, y % stride);
-                let mut all: Vec<(i64, usize)> = refs
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &r)| (dist(g, r), i))
-                    .collect();
-                all.sort();
-                let pos = [x as u32, y as u32];
-                let nearest = |n: usize| {
-                    all.iter().take(n).map(|&(_, i)| {
-                        let r = refs[i];
-                        [((r % w + dx) % w) as u32, ((r / w + dy) % h) as u32]
-                    })
-                };
-                let size = (w as u32, h as u32);
-                let want = set_of(pos, nearest(4 * k + 8), k, spacing.radius, size);
-                assert_eq!(c.of(pos), &want[..], "pixel {p}");
-                assert_eq!(c.of(pos)[0], pos);
-                widened +=
-                    usize::from(apart(pos, nearest(2 * k + 4), k, spacing.radius, size).len() < k);
-            }
+            assert_eq!(c.stride(), spacing.stride);
+            let probes = (0..w * h).step_by(37).chain([17, 555, 1199, 4799]);
+            widened += check_sets(&c, &app, (w, h), dims, spacing, probes);
         }
         assert!(widened > 0, "no checked set needed the second pass");
+    }
+
+    /// Checks the sets of `c` at the pixels `probes` against a brute-force
+    /// scan of the quantised vectors of `app` over every reference of the
+    /// grid, near-duplicates passed over; returns how many of them needed
+    /// more than the first pass's `2k + 4` nearest.
+    fn check_sets(
+        c: &Candidates,
+        app: &[f32],
+        (w, h): (usize, usize),
+        dims: usize,
+        spacing: Spacing,
+        probes: impl Iterator<Item = usize>,
+    ) -> usize {
+        let (k, stride) = (c.k, c.stride());
+        let used: Vec<f32> = app
+            .chunks_exact(dims)
+            .flat_map(|v| v[..SEARCH_DIMS].to_vec())
+            .collect();
+        let (lo, hi) = used
+            .iter()
+            .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+        let q = |v: f32| ((v - lo) * 255.0 / (hi - lo)).round().clamp(0.0, 255.0) as i64;
+        let dist = |a: usize, b: usize| -> i64 {
+            (0..SEARCH_DIMS)
+                .map(|d| (q(used[a * SEARCH_DIMS + d]) - q(used[b * SEARCH_DIMS + d])).pow(2))
+                .sum()
+        };
+        let refs: Vec<usize> = (0..h)
+            .step_by(stride)
+            .flat_map(|y| (0..w).step_by(stride).map(move |x| y * w + x))
+            .collect();
+        let mut widened = 0;
+        for p in probes {
+            let (x, y) = (p % w, p / w);
+            // The grid pixel the query is searched from, and the shift.
+            let g = y / stride * stride * w + x / stride * stride;
+            let (dx, dy) = (x % stride, y % stride);
+            let mut all: Vec<(i64, usize)> = refs
+                .iter()
+                .enumerate()
+                .map(|(i, &r)| (dist(g, r), i))
+                .collect();
+            all.sort();
+            let pos = [x as u32, y as u32];
+            let nearest = |n: usize| {
+                all.iter().take(n).map(|&(_, i)| {
+                    let r = refs[i];
+                    [((r % w + dx) % w) as u32, ((r / w + dy) % h) as u32]
+                })
+            };
+            let size = (w as u32, h as u32);
+            let want = set_of(pos, nearest(4 * k + 8), k, spacing.radius, size);
+            assert_eq!(c.of(pos), &want[..], "pixel {p}");
+            assert_eq!(c.of(pos)[0], pos);
+            widened +=
+                usize::from(apart(pos, nearest(2 * k + 4), k, spacing.radius, size).len() < k);
+        }
+        widened
+    }
+
+    /// A level over [`EXACT_PIXELS`] is gridded at the smallest stride that
+    /// fits, or at its near-duplicate radius where that is coarser; a
+    /// smaller level keeps its spacing's stride.
+    #[test]
+    fn a_large_level_is_gridded_at_its_near_duplicate_radius() {
+        let big = (1024, 257);
+        assert_eq!(grid_stride(big, Spacing::of_step(1)), 2);
+        assert_eq!(grid_stride(big, Spacing::of_step(4)), 2);
+        assert_eq!(grid_stride(big, Spacing::of_step(16)), 8);
+        assert_eq!(grid_stride((2048, 2048), Spacing::of_step(8)), 4);
+        assert_eq!(grid_stride((2048, 2048), Spacing::of_step(1)), 4);
+        assert_eq!(grid_stride((512, 512), Spacing::of_step(64)), 1);
+        assert_eq!(grid_stride((4096, 128), Spacing::of_step(512)), 128);
+        // The sets of the coarser grid are still the exact nearest of its
+        // references, shifted to each pixel.
+        let (dims, k) = (9, 4);
+        let app = random_appearance(big.0 * big.1 * dims, 4242);
+        let spacing = Spacing::of_step(16);
+        let of = SetsOf {
+            appearance: &app,
+            size: big,
+            dims,
+            spacing,
+            k,
+        };
+        let mut backend = LocalSearch::new(Engine::default());
+        let c = Candidates::search(&of, 0, &mut backend, &crate::progress::Silent).unwrap();
+        assert_eq!(c.stride(), 8);
+        let probes = (0..big.0 * big.1).step_by(4099).chain([1, 8 * 1024 + 9]);
+        check_sets(&c, &app, big, dims, spacing, probes);
     }
 
     proptest! {
