@@ -20,8 +20,9 @@ use super::candidates::{Candidates, SetsOf, EXACT_PIXELS, MAX_K, SEARCH_DIMS};
 use crate::imaging;
 
 /// Version of the file layout and of the search that fills it: a change to
-/// either must bump it, so old files are not read as new.
-const FORMAT: u32 = 1;
+/// either must bump it, so old files are not read as new (2: large levels
+/// gridded at least at their near-duplicate radius).
+const FORMAT: u32 = 2;
 /// First bytes of a file.
 const MAGIC: &[u8; 8] = b"TXSYNKC\0";
 /// Header: magic, format, key, then k, stride, width, height.
