@@ -372,7 +372,7 @@ pub fn run(a: &QualityArgs) -> Result<()> {
         rows: Vec::new(),
         failures: Vec::new(),
     };
-    println!("| texture | method | time | peak | S_F | S_L | colour | fidelity | copy | repeat | seam | overlap (chance) |");
+    println!("| texture | method | time | peak | S_F | S_L | colour | fidelity | copy | repeat | seam | overlap (chance) / nearest pair |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for (k, file) in files.iter().enumerate() {
         let name = file
@@ -398,7 +398,10 @@ pub fn run(a: &QualityArgs) -> Result<()> {
             match job.run(method) {
                 Ok((img, scores, set, secs, peak)) => {
                     let overlap = scores.tiles.as_ref().map_or("-".into(), |t| {
-                        format!("{:.3} ({:.3})", t.tile_overlap, t.tile_overlap_chance)
+                        format!(
+                            "{:.3} ({:.3}) / {:.2}",
+                            t.tile_overlap, t.tile_overlap_chance, t.tile_copy
+                        )
                     });
                     println!(
                         "| {name} | {method} | {secs:.1} s | {:.0} MiB | {:.3} | {:.3} | {:.4} | {:.2} | {:.3} | {:.3} | {:.2} | {overlap} |",

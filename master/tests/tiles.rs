@@ -967,6 +967,38 @@ fn derived_tiles_take_distinct_patches_when_free_places_run_out() {
     assert!(ok, "a tile's wrap joints step {worst} × its interior");
 }
 
+#[test]
+fn patch_sources_keep_apart_so_no_tile_is_a_shifted_copy_of_another() {
+    // A sample only twice the tile's side has no room for eight sources a
+    // quarter apart; the tiles must still not be the template moved a pixel
+    // or two, which `tile_overlap` (equal pixels in place) cannot see.
+    for name in ["pink_marble_color_128.png", "leaves_green_color_161.png"] {
+        let sample = texture(name);
+        let side = sample.width.min(sample.height) / 2;
+        let set = somol_set(&sample, side, false);
+        let mut sources = vec![(set.template.rect.x, set.template.rect.y)];
+        sources.extend(
+            set.derived
+                .iter()
+                .map(|d| (d.patch.source.x, d.patch.source.y)),
+        );
+        let nearest = (0..sources.len())
+            .flat_map(|i| (0..i).map(move |j| (i, j)))
+            .map(|(i, j)| {
+                let (a, b) = (sources[i], sources[j]);
+                a.0.abs_diff(b.0).max(a.1.abs_diff(b.1))
+            })
+            .min()
+            .unwrap();
+        assert!(
+            nearest >= side / 8,
+            "{name}: two sources {nearest} px apart: {sources:?}"
+        );
+        let copy = compare::tile_copy(&set.tiles).unwrap();
+        assert!(copy < 0.75, "{name}: a tile is {copy} a copy of another");
+    }
+}
+
 /// Whether no tile's wrap joints (which are its joints with any neighbour
 /// when all tiles share the template's first column and row) step more than
 /// its interior's median, or the template's own if that is more.

@@ -19,7 +19,9 @@ pub mod set;
 #[cfg(test)]
 mod tests;
 
-pub use repetition::{copy_share, repeat_share, tile_overlap, tile_overlap_chance, CopyShare};
+pub use repetition::{
+    copy_share, repeat_share, tile_copy, tile_overlap, tile_overlap_chance, CopyShare,
+};
 
 use anyhow::{ensure, Result};
 use rustfft::{num_complex::Complex, FftPlanner};
@@ -78,6 +80,9 @@ pub struct GridScores {
     /// ([`repetition::tile_overlap_chance`]); `tile_overlap` above it is
     /// shared content.
     pub tile_overlap_chance: f64,
+    /// The nearest pair of distinct tile images ([`repetition::tile_copy`]):
+    /// the largest share of one that is a shifted copy of another.
+    pub tile_copy: f64,
     /// Whether the outer edge counts as a joint (a grid that wraps).
     pub wrap: bool,
 }
@@ -146,6 +151,7 @@ pub fn compare_with(a: &ColorImage, b: &ColorImage, grid: Option<Grid>) -> Resul
                     distinct_tiles: distinct,
                     tile_overlap: overlap,
                     tile_overlap_chance: chance.unwrap_or(0.0),
+                    tile_copy: repetition::tile_copy(&cells).unwrap_or(0.0),
                     wrap: g.wrap,
                 }),
             )

@@ -377,6 +377,29 @@ pub fn tile_measures(tiles: &[ColorImage]) -> (usize, Option<f64>, Option<f64>) 
     )
 }
 
+/// The nearest pair of a set: the largest, over ordered pairs of distinct
+/// tile images, of the [`copy_share`] of one in the other. A tile whose
+/// patch came from a few pixels beside another's source is a shifted copy
+/// of it: [`tile_overlap`] (equal pixels in place) misses it, this does not.
+/// `None` for fewer than two distinct tiles.
+pub fn tile_copy(tiles: &[ColorImage]) -> Option<f64> {
+    let first = distinct_tiles(tiles);
+    let distinct: Vec<&ColorImage> = first
+        .iter()
+        .enumerate()
+        .filter(|&(i, &f)| i == f)
+        .map(|(i, _)| &tiles[i])
+        .collect();
+    let n = distinct.len();
+    let pairs: Vec<(usize, usize)> = (0..n)
+        .flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j)))
+        .collect();
+    pairs
+        .par_iter()
+        .map(|&(i, j)| copy_share(distinct[i], distinct[j]).share)
+        .reduce_with(f64::max)
+}
+
 /// The full `tw`×`th` cells of a grid image, row by row.
 pub fn grid_cells(img: &ColorImage, tw: usize, th: usize) -> Vec<ColorImage> {
     let (cols, rows) = (img.width / tw.max(1), img.height / th.max(1));

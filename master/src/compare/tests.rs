@@ -223,6 +223,32 @@ fn tile_overlap_chance_is_what_unrelated_tiles_of_a_flat_texture_share() {
 }
 
 #[test]
+fn tile_copy_finds_a_shifted_copy_that_tile_overlap_misses() {
+    // Eight 40×40 crops of one larger texture: seven far apart and one taken
+    // 2 px below the first, as a patch drawn beside another's source is.
+    let big = noise(200, 200, 255, 21);
+    let at = [
+        (0, 0),
+        (80, 0),
+        (160, 0),
+        (0, 80),
+        (80, 80),
+        (160, 80),
+        (0, 160),
+    ];
+    let mut tiles: Vec<ColorImage> = at.iter().map(|&(x, y)| big.crop(x, y, 40, 40)).collect();
+    let apart = tile_copy(&tiles).unwrap();
+    tiles.push(big.crop(0, 2, 40, 40));
+    let near = tile_copy(&tiles).unwrap();
+    let overlap = tile_overlap(&tiles).unwrap();
+    assert!(apart < 0.01, "far crops share {apart}");
+    // All but the two last 8-pixel rows of patches are found at one offset.
+    assert!(near > 0.85, "the shifted crop shares only {near}");
+    assert!(overlap < 0.01, "equal pixels in place: {overlap}");
+    assert_eq!(tile_copy(&tiles[..1]), None);
+}
+
+#[test]
 fn grid_seams_count_real_joints_only() {
     // An image cut into cells in order: its joints are invisible, but its
     // outer edge does not continue (it does not wrap).

@@ -297,6 +297,12 @@ fn template_tile(
     Ok((best.1, best.2, best.3))
 }
 
+/// The shares (numerator, denominator) of the smaller of two rectangles
+/// that a patch may have in common with the template's source or an earlier
+/// patch, loosest last: a patch takes the least rung some candidate reaches,
+/// and one on a rectangle already taken comes after all of them.
+const SHARE_RUNGS: [(usize, usize); 7] = [(1, 4), (3, 8), (1, 2), (5, 8), (3, 4), (7, 8), (63, 64)];
+
 /// A scored candidate: ((its wrap joints show, mean path error), x, y).
 type Scored = ((bool, f64), usize, usize);
 
@@ -316,8 +322,9 @@ struct Cutting<'a> {
 }
 
 /// Where tile `k`'s patch comes from: the best of the seeded random
-/// candidates that overlaps no `taken` rectangle by more than a quarter,
-/// refined pixel by pixel on its `±refine` neighbourhood; and the
+/// candidates that overlap no `taken` rectangle by more than the least
+/// [`SHARE_RUNGS`] share any candidate reaches (a quarter while the sample
+/// has room), refined pixel by pixel on its `±refine` neighbourhood; and the
 /// candidates' mean path error. With a joint bound, each candidate is also
 /// inserted, and those whose tile's wrap joints step more than the bound
 /// rank after all whose joints hold, so a wrapping patch reaches the tile's
@@ -352,41 +359,39 @@ fn choose_patch(
         .collect();
     let scored: Vec<Scored> = positions.par_iter().map(|&(x, y)| score(x, y)).collect();
     let random_mean = scored.iter().map(|c| c.0 .1).sum::<f64>() / scored.len() as f64;
-    let area = target.width * target.height;
-    let overlap = |x: usize, y: usize| {
+    // The least rung of [`SHARE_RUNGS`] some candidate reaches: a patch
+    // shares at most that much of the smaller of it and any taken rectangle
+    // (a source a few pixels from another would make a shifted copy of its
+    // tile, whose joints hold as well as the original's). Among the
+    // candidates on that rung, the best by joints and path error.
+    let rung_of = |x: usize, y: usize| {
         let r = Rect { x, y, ..target };
-        taken
-            .iter()
-            .map(|o| r.intersection_area(o))
-            .max()
-            .unwrap_or(0)
+        let share_rung = |o: &Rect| {
+            let (common, smaller) = (
+                r.intersection_area(o),
+                (r.width * r.height).min(o.width * o.height),
+            );
+            SHARE_RUNGS
+                .iter()
+                .position(|&(n, d)| common * d <= smaller * n)
+                .unwrap_or(SHARE_RUNGS.len())
+        };
+        taken.iter().map(share_rung).max().unwrap_or(0)
     };
-    let free = |x: usize, y: usize| overlap(x, y) * 4 <= area;
-    // The best free candidate, or if none is free, a place no tile took,
-    // among those whose joints hold where possible, the one that overlaps
-    // the taken rectangles least.
-    let taken_already = |c: &Scored| overlap(c.1, c.2) == area;
+    let rung = scored.iter().map(|c| rung_of(c.1, c.2)).min().unwrap_or(0);
     let pick = scored
         .iter()
-        .filter(|c| free(c.1, c.2))
+        .filter(|c| rung_of(c.1, c.2) <= rung)
         .min_by(|a, b| by_score(a, b))
-        .or_else(|| {
-            scored.iter().min_by(|a, b| {
-                (taken_already(a).cmp(&taken_already(b)))
-                    .then(a.0 .0.cmp(&b.0 .0))
-                    .then(overlap(a.1, a.2).cmp(&overlap(b.1, b.2)))
-                    .then(by_score(a, b))
-            })
-        })
         .copied()
         .unwrap_or(((true, f64::INFINITY), 0, 0));
     // Local refinement on the ±refine neighbourhood, pixel by pixel (so
-    // periodic structure can line up with the template's).
+    // periodic structure can line up with the template's), on the same rung.
     let (x0, y0) = (pick.1, pick.2);
     let r = s.refine;
     let near: Vec<(usize, usize)> = (x0.saturating_sub(r)..=(x0 + r).min(xs))
         .flat_map(|x| (y0.saturating_sub(r)..=(y0 + r).min(ys)).map(move |y| (x, y)))
-        .filter(|&(x, y)| free(x, y) || (x, y) == (x0, y0))
+        .filter(|&(x, y)| rung_of(x, y) <= rung || (x, y) == (x0, y0))
         .collect();
     let best = near
         .par_iter()
@@ -470,7 +475,8 @@ pub const EXTRA_FROM: usize = 128;
 /// tile, `candidates` random source positions (seeded) are scored by the mean
 /// error along their four side paths; positions whose rectangle overlaps the
 /// template's source or an earlier patch by more than a quarter are passed
-/// over (so the tiles differ); the best is refined pixel by pixel on the
+/// over (so the tiles differ), or where the sample has no such room left,
+/// all but those overlapping least ([`SHARE_RUNGS`]); the best is refined pixel by pixel on the
 /// `±refine` neighbourhood, as the paper does. With no `margin`, the patch
 /// covers the template continued by its first column and row
 /// ([`ColorImage::wrap_padded`] by one): every tile keeps only that
