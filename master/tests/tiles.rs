@@ -971,7 +971,9 @@ fn derived_tiles_take_distinct_patches_when_free_places_run_out() {
 fn patch_sources_keep_apart_so_no_tile_is_a_shifted_copy_of_another() {
     // A sample only twice the tile's side has no room for eight sources a
     // quarter apart; the tiles must still not be the template moved a pixel
-    // or two, which `tile_overlap` (equal pixels in place) cannot see.
+    // or two, which `tile_overlap` (equal pixels in place) cannot see, and
+    // the room that is left must be found: 48 candidates alone left leaves'
+    // last tile the template moved by (14, 15), 0.72 a copy of it.
     for name in ["pink_marble_color_128.png", "leaves_green_color_161.png"] {
         let sample = texture(name);
         let side = sample.width.min(sample.height) / 2;
@@ -995,7 +997,7 @@ fn patch_sources_keep_apart_so_no_tile_is_a_shifted_copy_of_another() {
             "{name}: two sources {nearest} px apart: {sources:?}"
         );
         let copy = compare::tile_copy(&set.tiles).unwrap();
-        assert!(copy < 0.75, "{name}: a tile is {copy} a copy of another");
+        assert!(copy < 0.6, "{name}: a tile is {copy} a copy of another");
     }
 }
 

@@ -303,6 +303,10 @@ fn template_tile(
 /// and one on a rectangle already taken comes after all of them.
 const SHARE_RUNGS: [(usize, usize); 7] = [(1, 4), (3, 8), (1, 2), (5, 8), (3, 4), (7, 8), (63, 64)];
 
+/// How many times the seeded candidates are drawn, to find places on the
+/// least share rung, once none of them is free.
+const WIDER_DRAW: usize = 16;
+
 /// A scored candidate: ((its wrap joints show, mean path error), x, y).
 type Scored = ((bool, f64), usize, usize);
 
@@ -354,11 +358,6 @@ fn choose_patch(
         ((shows, error), x, y)
     };
     let (xs, ys) = (sample.width - target.width, sample.height - target.height);
-    let positions: Vec<(usize, usize)> = (0..s.candidates.max(1))
-        .map(|_| (rng.random_range(0..=xs), rng.random_range(0..=ys)))
-        .collect();
-    let scored: Vec<Scored> = positions.par_iter().map(|&(x, y)| score(x, y)).collect();
-    let random_mean = scored.iter().map(|c| c.0 .1).sum::<f64>() / scored.len() as f64;
     // The least rung of [`SHARE_RUNGS`] some candidate reaches: a patch
     // shares at most that much of the smaller of it and any taken rectangle
     // (a source a few pixels from another would make a shifted copy of its
@@ -378,6 +377,25 @@ fn choose_patch(
         };
         taken.iter().map(share_rung).max().unwrap_or(0)
     };
+    let n = s.candidates.max(1);
+    let mut draw = |count: usize| -> Vec<(usize, usize)> {
+        (0..count)
+            .map(|_| (rng.random_range(0..=xs), rng.random_range(0..=ys)))
+            .collect()
+    };
+    let mut positions = draw(n);
+    let least = |p: &[(usize, usize)]| p.iter().map(|&(x, y)| rung_of(x, y)).min();
+    if least(&positions).is_some_and(|r| r > 0) {
+        // No free place among them: a draw [`WIDER_DRAW`] times as large,
+        // whose places on its least rung (cheap to find) are the ones
+        // scored, so the sample's remaining room is found, not missed.
+        positions.extend(draw(n * (WIDER_DRAW - 1)));
+        let r = least(&positions);
+        positions.retain(|&(x, y)| Some(rung_of(x, y)) == r);
+        positions.truncate(n);
+    }
+    let scored: Vec<Scored> = positions.par_iter().map(|&(x, y)| score(x, y)).collect();
+    let random_mean = scored.iter().map(|c| c.0 .1).sum::<f64>() / scored.len() as f64;
     let rung = scored.iter().map(|c| rung_of(c.1, c.2)).min().unwrap_or(0);
     let pick = scored
         .iter()
