@@ -125,7 +125,8 @@ pub struct DerivedTile {
     #[serde(default)]
     pub extra: Vec<PatchReport>,
     /// The mean path error of the random candidates of this tile (what a
-    /// random choice would have given, on average).
+    /// random choice would have given, on average; once no place is free,
+    /// of the random places on the least share rung that were scored).
     pub random_mean_path_error: f64,
     pub seconds: f64,
 }
