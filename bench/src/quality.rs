@@ -399,8 +399,10 @@ pub fn run(a: &QualityArgs) -> Result<()> {
                 Ok((img, scores, set, secs, peak)) => {
                     let overlap = scores.tiles.as_ref().map_or("-".into(), |t| {
                         format!(
-                            "{:.3} ({:.3}) / {:.2}",
-                            t.tile_overlap, t.tile_overlap_chance, t.tile_copy
+                            "{:.3} ({:.3}) / {}",
+                            t.tile_overlap,
+                            t.tile_overlap_chance,
+                            t.tile_copy.map_or("-".into(), |c| format!("{c:.2}"))
                         )
                     });
                     println!(

@@ -81,8 +81,11 @@ pub struct GridScores {
     /// shared content.
     pub tile_overlap_chance: f64,
     /// The nearest pair of distinct tile images ([`repetition::tile_copy`]):
-    /// the largest share of one that is a shifted copy of another.
-    pub tile_copy: f64,
+    /// the largest share of one that is a shifted copy of another; absent
+    /// for a grid of more than [`repetition::MAX_NEAREST_PAIR_TILES`]
+    /// distinct cells.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tile_copy: Option<f64>,
     /// Whether the outer edge counts as a joint (a grid that wraps).
     pub wrap: bool,
 }
@@ -151,7 +154,7 @@ pub fn compare_with(a: &ColorImage, b: &ColorImage, grid: Option<Grid>) -> Resul
                     distinct_tiles: distinct,
                     tile_overlap: overlap,
                     tile_overlap_chance: chance.unwrap_or(0.0),
-                    tile_copy: repetition::tile_copy(&cells).unwrap_or(0.0),
+                    tile_copy: repetition::tile_copy(&cells),
                     wrap: g.wrap,
                 }),
             )

@@ -377,11 +377,17 @@ pub fn tile_measures(tiles: &[ColorImage]) -> (usize, Option<f64>, Option<f64>) 
     )
 }
 
+/// Most distinct tiles [`tile_copy`] pairs (4032 ordered pairs, about a
+/// second on 2 cores for 64² tiles).
+pub const MAX_NEAREST_PAIR_TILES: usize = 64;
+
 /// The nearest pair of a set: the largest, over ordered pairs of distinct
 /// tile images, of the [`copy_share`] of one in the other. A tile whose
 /// patch came from a few pixels beside another's source is a shifted copy
 /// of it: [`tile_overlap`] (equal pixels in place) misses it, this does not.
-/// `None` for fewer than two distinct tiles.
+/// `None` for fewer than two distinct tiles, or more than
+/// [`MAX_NEAREST_PAIR_TILES`] (the pairs grow as its square: a tile set has
+/// a few dozen, a synthesis cut into small cells thousands).
 pub fn tile_copy(tiles: &[ColorImage]) -> Option<f64> {
     let first = distinct_tiles(tiles);
     let distinct: Vec<&ColorImage> = first
@@ -391,6 +397,9 @@ pub fn tile_copy(tiles: &[ColorImage]) -> Option<f64> {
         .map(|(i, _)| &tiles[i])
         .collect();
     let n = distinct.len();
+    if n > MAX_NEAREST_PAIR_TILES {
+        return None;
+    }
     let pairs: Vec<(usize, usize)> = (0..n)
         .flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j)))
         .collect();

@@ -38,8 +38,10 @@ pub struct SetScores {
     /// [`super::repetition::tile_overlap_chance`]).
     pub tile_overlap_chance: f64,
     /// The nearest pair: the largest share of one tile that is a verbatim
-    /// copy of another at one offset (see [`super::repetition::tile_copy`]).
-    pub tile_copy: f64,
+    /// copy of another at one offset (see [`super::repetition::tile_copy`];
+    /// absent for one distinct tile or very many).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tile_copy: Option<f64>,
     /// ω-tiles: corner colours, each with its sample patch.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub colours: Option<usize>,
@@ -120,7 +122,7 @@ pub fn set_scores(dir: &Path) -> Result<SetScores> {
         distinct_tiles: distinct,
         tile_overlap: overlap.unwrap_or(0.0),
         tile_overlap_chance: chance.unwrap_or(0.0),
-        tile_copy: tile_copy(&tiles).unwrap_or(0.0),
+        tile_copy: tile_copy(&tiles),
         colours: omega.then_some(p.len()),
         distinct_patches: omega.then_some(distinct_patches),
         patch_overlap: omega.then(|| pairs.iter().sum::<f64>() / pairs.len().max(1) as f64),

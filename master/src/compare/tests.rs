@@ -246,6 +246,13 @@ fn tile_copy_finds_a_shifted_copy_that_tile_overlap_misses() {
     assert!(near > 0.85, "the shifted crop shares only {near}");
     assert!(overlap < 0.01, "equal pixels in place: {overlap}");
     assert_eq!(tile_copy(&tiles[..1]), None);
+    // A grid of very many distinct cells is not paired (its pairs grow as
+    // the square of their number).
+    let many: Vec<ColorImage> = (0..=repetition::MAX_NEAREST_PAIR_TILES as u64)
+        .map(|s| noise(16, 16, 255, 100 + s))
+        .collect();
+    assert_eq!(tile_copy(&many), None);
+    assert!(tile_copy(&many[1..]).is_some());
 }
 
 #[test]
