@@ -336,17 +336,11 @@ pub fn tile_overlap_chance(tiles: &[ColorImage]) -> Option<f64> {
 /// [`tile_overlap`] and [`tile_overlap_chance`], finding the distinct images
 /// once.
 pub fn tile_measures(tiles: &[ColorImage]) -> (usize, Option<f64>, Option<f64>) {
-    let first = distinct_tiles(tiles);
-    let count = first.iter().enumerate().filter(|&(i, &f)| i == f).count();
+    let distinct: Vec<Packed> = distinct_images(tiles).map(Packed::of).collect();
+    let count = distinct.len();
     if tiles.len() < 2 {
         return (count, None, None);
     }
-    let distinct: Vec<Packed> = first
-        .iter()
-        .enumerate()
-        .filter(|&(i, &f)| i == f)
-        .map(|(i, _)| Packed::of(&tiles[i]))
-        .collect();
     if distinct.len() < 2 {
         return (count, Some(1.0), None);
     }
@@ -367,14 +361,29 @@ pub fn tile_measures(tiles: &[ColorImage]) -> (usize, Option<f64>, Option<f64>) 
     let unordered = (0..n)
         .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
         .collect();
-    let ordered = (0..n)
-        .flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j)))
-        .collect();
     (
         count,
         Some(mean(unordered, (0, 0))),
-        Some(mean(ordered, (w / 2, h / 2))),
+        Some(mean(ordered_pairs(n), (w / 2, h / 2))),
     )
+}
+
+/// The first of each distinct image among `tiles` ([`distinct_tiles`]).
+fn distinct_images(tiles: &[ColorImage]) -> impl Iterator<Item = &ColorImage> {
+    let first = distinct_tiles(tiles);
+    tiles
+        .iter()
+        .zip(first)
+        .enumerate()
+        .filter(|&(i, (_, f))| i == f)
+        .map(|(_, (t, _))| t)
+}
+
+/// Every ordered pair `(i, j)`, `i ≠ j`, of `n` items.
+fn ordered_pairs(n: usize) -> Vec<(usize, usize)> {
+    (0..n)
+        .flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j)))
+        .collect()
 }
 
 /// Most distinct tiles [`tile_copy`] pairs (4032 ordered pairs, about a
@@ -389,21 +398,12 @@ pub const MAX_NEAREST_PAIR_TILES: usize = 64;
 /// [`MAX_NEAREST_PAIR_TILES`] (the pairs grow as its square: a tile set has
 /// a few dozen, a synthesis cut into small cells thousands).
 pub fn tile_copy(tiles: &[ColorImage]) -> Option<f64> {
-    let first = distinct_tiles(tiles);
-    let distinct: Vec<&ColorImage> = first
-        .iter()
-        .enumerate()
-        .filter(|&(i, &f)| i == f)
-        .map(|(i, _)| &tiles[i])
-        .collect();
+    let distinct: Vec<&ColorImage> = distinct_images(tiles).collect();
     let n = distinct.len();
     if n > MAX_NEAREST_PAIR_TILES {
         return None;
     }
-    let pairs: Vec<(usize, usize)> = (0..n)
-        .flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j)))
-        .collect();
-    pairs
+    ordered_pairs(n)
         .par_iter()
         .map(|&(i, j)| copy_share(distinct[i], distinct[j]).share)
         .reduce_with(f64::max)

@@ -386,18 +386,18 @@ fn choose_patch(
     };
     let mut positions = draw(n);
     let least = |p: &[(usize, usize)]| p.iter().map(|&(x, y)| rung_of(x, y)).min();
-    if least(&positions).is_some_and(|r| r > 0) {
+    let mut rung = least(&positions).unwrap_or(0);
+    if rung > 0 {
         // No free place among them: a draw [`WIDER_DRAW`] times as large,
         // whose places on its least rung (cheap to find) are the ones
         // scored, so the sample's remaining room is found, not missed.
         positions.extend(draw(n * (WIDER_DRAW - 1)));
-        let r = least(&positions);
-        positions.retain(|&(x, y)| Some(rung_of(x, y)) == r);
+        rung = least(&positions).unwrap_or(0);
+        positions.retain(|&(x, y)| rung_of(x, y) == rung);
         positions.truncate(n);
     }
     let scored: Vec<Scored> = positions.par_iter().map(|&(x, y)| score(x, y)).collect();
     let random_mean = scored.iter().map(|c| c.0 .1).sum::<f64>() / scored.len() as f64;
-    let rung = scored.iter().map(|c| rung_of(c.1, c.2)).min().unwrap_or(0);
     let pick = scored
         .iter()
         .filter(|c| rung_of(c.1, c.2) <= rung)
