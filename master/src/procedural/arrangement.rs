@@ -214,7 +214,7 @@ mod tests {
         let clouds = analyse("clouds", &[4.0, 0.5]);
         assert_eq!(clouds.arrangement, Arrangement::Isotropic, "{clouds:?}");
         // Full jitter: a grid jittered less keeps a lattice's spectrum.
-        let cells = analyse("cells", &[8.0, 1.0, 0.7]);
+        let cells = analyse("cells", &[8.0, 1.0, 0.7, 0.25]);
         assert_eq!(cells.arrangement, Arrangement::Isotropic, "{cells:?}");
     }
 

@@ -403,9 +403,12 @@ mod tests {
     #[test]
     fn scattered_features_seed_their_count() {
         let n = 128;
-        for (name, truth) in [("cells", [9.0, 0.8, 0.7]), ("spots", [6.0, 0.3, 0.2])] {
+        for (name, truth) in [
+            ("cells", &[9.0, 0.8, 0.7, 0.25][..]),
+            ("spots", &[6.0, 0.3, 0.2][..]),
+        ] {
             let s = by_name(name).unwrap();
-            let f = s.render_field(&truth, n, n, n);
+            let f = s.render_field(truth, n, n, n);
             let per = Periodicity::of_field(&f, n);
             let mut base = truth.to_vec();
             base[0] = 3.0;

@@ -47,6 +47,13 @@ pub(super) const CELLS: &[ParamSpec] = &[
         Continuous,
         "mix of F1 (0: dots) and F2 − F1 (1: cell walls)",
     ),
+    ParamSpec::new(
+        "width",
+        0.03,
+        0.35,
+        Continuous,
+        "edge width of the dots and walls, fraction of a cell",
+    ),
 ];
 
 /// Nearest and second-nearest feature-point distances (in cells) of a
@@ -72,9 +79,13 @@ pub(super) fn worley(u: f64, v: f64, n: f64, jitter: f64, salt: u32) -> (f64, f6
     (f1, f2)
 }
 
+/// Worley cells (§3.1): a mix of F1 dots and F2 − F1 walls, each falling
+/// off over `width` of a cell, so that the walls' thickness is free of the
+/// count (caustic lines and the gaps between beans are thin at any spacing).
 pub(super) fn cells(p: &[f64], _: &Perlin, u: f64, v: f64) -> f64 {
     let (f1, f2) = worley(u, v, p[0], p[1], 11);
-    (1.0 - p[2]) * (1.2 * f1) + p[2] * (1.0 - 2.0 * (f2 - f1)).max(0.0)
+    let w = 2.0 * p[3];
+    (1.0 - p[2]) * (f1 / w).min(1.0) + p[2] * (1.0 - (f2 - f1) / w).max(0.0)
 }
 
 pub(super) const BRICKS: &[ParamSpec] = &[

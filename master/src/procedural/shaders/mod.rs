@@ -385,6 +385,29 @@ mod tests {
         }
     }
 
+    /// The cells' edge width is a width, not a count: at one count, narrow
+    /// walls (the caustics' bright lines, the gaps between beans) cover a
+    /// small share of the cell and wide ones a large share, and the dots
+    /// shrink the same way; the count stays the number of cells.
+    #[test]
+    fn the_cells_edge_width_narrows_walls_and_dots_at_one_count() {
+        let s = by_name("cells").unwrap();
+        let share = |borders: f64, width: f64, above: bool| {
+            let f = s.render_field(&[6.0, 0.8, borders, width], 96, 96, 96);
+            let n = f
+                .iter()
+                .filter(|&&x| if above { x > 0.5 } else { x < 0.5 })
+                .count();
+            n as f64 / f.len() as f64
+        };
+        // Walls (F2 − F1) are where the field is high.
+        let (thin, thick) = (share(1.0, 0.05, true), share(1.0, 0.3, true));
+        assert!(thin < 0.2 && thick > 2.0 * thin, "walls {thin} {thick}");
+        // Dots (F1) are where it is low.
+        let (small, large) = (share(0.0, 0.05, false), share(0.0, 0.3, false));
+        assert!(small < 0.2 && large > 2.0 * small, "dots {small} {large}");
+    }
+
     #[test]
     fn integer_and_periodic_parameters_are_made_legal() {
         let rows = &BRICKS[0];
@@ -398,7 +421,7 @@ mod tests {
     #[test]
     fn rendering_does_not_depend_on_threads() {
         let s = by_name("cells").unwrap();
-        let p = [5.0, 0.7, 0.4];
+        let p = [5.0, 0.7, 0.4, 0.2];
         let [one, two] = crate::procedural::one_and_two_threads();
         let a = one.install(|| s.render_field(&p, 40, 33, 40));
         let b = two.install(|| s.render_field(&p, 40, 33, 40));
