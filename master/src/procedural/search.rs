@@ -22,8 +22,8 @@ use super::catalogue::{describe, selected, unit_distance, Catalogue};
 use super::local::{refine, refine_with_integers, Effort};
 use super::objective::{Eval, Target};
 use super::pattern::{round, Pattern};
-use super::periodicity::{seeded, Periodicity, SCATTERED};
-use super::shaders::{Kind, Layout, Shader};
+use super::periodicity::{seeded, Periodicity};
+use super::shaders::{Kind, Shader};
 use crate::imaging::ColorImage;
 
 /// How hard to search.
@@ -248,15 +248,6 @@ fn starting_points(cat: &Catalogue, target: &Target, s: &MatchSettings) -> Resul
         // its counts and angle read from them), first.
         if let Some((base, adm)) = chosen.first().map(|c| (c.params.clone(), c.admissibility)) {
             if let Some(p) = seeded(sh, &base, &target.periodicity) {
-                // Scattered features: the pieces set the scale, so every
-                // start of a scattered shader takes the seeded count.
-                if let Layout::Scatter { count } = sh.layout {
-                    if target.periodicity.pieces.separation >= SCATTERED {
-                        for c in &mut chosen {
-                            c.params[count] = p[count];
-                        }
-                    }
-                }
                 if chosen.iter().all(|c| c.params != p) {
                     let d = describe(sh, &p, cat.size).distance(&target.structure);
                     chosen.insert(
@@ -467,50 +458,4 @@ pub(super) fn match_prepared(
         seconds: started.elapsed().as_secs_f64(),
         candidates,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::procedural::catalogue::BuildSettings;
-
-    /// Scattered features (§3.3): the caustics' pieces seed the cells'
-    /// count, and every start of the scattered shaders takes it, so no
-    /// catalogue sample at another scale is screened. Without it the cells
-    /// starts here are 4, 16, 16 and 6 for 5 hand-counted cells across,
-    /// and the full match kept 14.
-    #[test]
-    fn scattered_shaders_start_at_the_count_the_pieces_seed() {
-        let cat = Catalogue::build(
-            &BuildSettings {
-                size: 128,
-                samples: 40,
-                shaders: Some(vec!["cells".into(), "spots".into()]),
-            },
-            &crate::progress::Silent,
-        )
-        .unwrap();
-        let settings = MatchSettings {
-            shaders: Some(vec!["cells".into(), "spots".into()]),
-            families: 2,
-            disparity: 10.0,
-            ..MatchSettings::default()
-        };
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../assets/textures/water_pool_color_94.png");
-        let target = Target::new(&crate::imaging::load_color(&path).unwrap(), 128).unwrap();
-        assert!(target.periodicity.pieces.separation >= SCATTERED);
-        let starts = starting_points(&cat, &target, &settings).unwrap();
-        for name in ["cells", "spots"] {
-            let counts: Vec<f64> = starts
-                .iter()
-                .filter(|s| s.shader.name == name)
-                .map(|s| s.params[0])
-                .collect();
-            assert!(counts.len() > 1, "{name}: {counts:?}");
-            assert!(counts.iter().all(|&c| c == counts[0]), "{name}: {counts:?}");
-        }
-        let cells = starts.iter().find(|s| s.shader.name == "cells").unwrap();
-        assert!((4.0..=6.0).contains(&cells.params[0]), "{:?}", cells.params);
-    }
 }
