@@ -12,7 +12,7 @@ use texsyn::parallel::{
     weights,
 };
 use texsyn::search::{LocalSearch, Plan, PlannedSearch};
-use texsyn::{synthesize, Config, Mode, Position, SynthMethod};
+use texsyn::{synthesize, Config, Mode, Position, Stitch, SynthMethod, PATH_GROWTH_NEIGHBOURHOOD};
 use texsyn_engine::Engine;
 
 fn run(sample: &ColorImage, mode: Mode, cfg: Config) -> Result<ColorImage> {
@@ -115,7 +115,12 @@ fn main() -> Result<()> {
                     height: 320,
                     method: SynthMethod::Grow,
                 },
-                Config::default(),
+                // `texsyn synth`'s defaults: path stitching, N = 13.
+                Config {
+                    stitch: Stitch::Path,
+                    neighbourhood: PATH_GROWTH_NEIGHBOURHOOD,
+                    ..Config::default()
+                },
             )?;
             row.push(sample);
             row.push(out);

@@ -36,4 +36,5 @@ pub mod tiles;
 
 pub use block::{
     synthesize, Config, FillSource, Mode, Output, Position, Report, Stitch, SynthMethod,
+    PATH_GROWTH_NEIGHBOURHOOD,
 };

@@ -1327,8 +1327,10 @@ fn compare_refuses_images_over_its_limit() {
 }
 
 /// The stitch defaults: `synth` stitches along paths (as `--stitch path`, and
-/// not as `--stitch hard`); `extend` keeps the square edge; repetition
-/// control is off unless asked for, and its flags are checked.
+/// not as `--stitch hard`) with N = 13 windows, while hard stitching,
+/// scan-line synthesis and `extend` keep N = 11; `extend` keeps the square
+/// edge; repetition control is off unless asked for, and its flags are
+/// checked.
 #[test]
 fn synth_defaults_to_path_stitching_and_extend_to_hard() {
     let dir = tempfile::tempdir().unwrap();
@@ -1345,12 +1347,33 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
     };
     let synth = run("synth", "synth", &[]);
     assert!(synth == run("synth", "path", &["--stitch", "path"]));
-    assert!(synth != run("synth", "hard", &["--stitch", "hard"]));
+    assert!(synth == run("synth", "n13", &["--neighbourhood", "13"]));
+    assert!(synth != run("synth", "n11", &["--neighbourhood", "11"]));
+    let hard = run("synth", "hard", &["--stitch", "hard"]);
+    assert!(synth != hard);
+    assert!(
+        hard == run(
+            "synth",
+            "hard11",
+            &["--stitch", "hard", "--neighbourhood", "11"]
+        )
+    );
+    assert!(
+        hard != run(
+            "synth",
+            "hard13",
+            &["--stitch", "hard", "--neighbourhood", "13"]
+        )
+    );
+    let scan = run("synth", "scan", &["--method", "scanline"]);
+    let scan11 = ["--method", "scanline", "--neighbourhood", "11"];
+    assert!(scan == run("synth", "scan11", &scan11));
     assert!(synth == run("synth", "off", &["--no-repeat-control"]));
     assert!(synth == run("synth", "zero", &["--repeat-percent", "0"]));
     assert!(synth != run("synth", "repeat", &["--repeat-percent", "25"]));
     let extend = run("extend", "extend", &[]);
     assert!(extend == run("extend", "ehard", &["--stitch", "hard"]));
+    assert!(extend == run("extend", "e11", &["--neighbourhood", "11"]));
     let out = dir.path().join("bad.png");
     for (flags, words) in [
         (

@@ -459,10 +459,18 @@ fn slack(ctx: &LevelContext, r: &RepeatControl, batch: &QueryBatch, q: usize) ->
 }
 
 /// Width of the band a copied block may extend into: what its reference
-/// window still covers beyond the block (N − B)/2, at most 3 pixels.
+/// window still covers beyond the block, (N − B)/2, at most
+/// [`MAX_STITCH_BAND`] pixels.
 fn stitch_band(b: usize, n: usize) -> usize {
-    ((n - b) / 2).min(3)
+    ((n - b) / 2).min(MAX_STITCH_BAND)
 }
+
+/// The widest stitching band (ARCHITECTURE §3.12). `synth`'s default N = 13
+/// with B = 5 reaches it; at 3 (the N = 11 band) the same N = 13 runs were
+/// ahead of the peer on the Laplacian histogram on 20 of 22 samples, at 4 on
+/// 21, with patch fidelity on 21 either way; a wider band needs N ≥ 15, which
+/// lost S_L on 5.
+const MAX_STITCH_BAND: usize = 4;
 
 /// The stitching bands of the reference block at `pos` copied into block
 /// `blk` (ARCHITECTURE §3.12): up to four sides, each `band` pixels wide and
@@ -685,6 +693,23 @@ fn rekey(
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    /// The band is what the window covers beyond the block, up to 4 pixels:
+    /// 3 at the paper's N = 11, 4 at `synth`'s N = 13, and never past the
+    /// window, which no other block of a batch overlaps.
+    #[test]
+    fn the_stitching_band_widens_with_the_window_up_to_four_pixels() {
+        assert_eq!(stitch_band(5, 11), 3);
+        assert_eq!(stitch_band(5, 13), 4);
+        assert_eq!(stitch_band(5, 21), 4);
+        assert_eq!(stitch_band(3, 7), 2);
+        for b in (1..=11).step_by(2) {
+            for n in (b + 2..=31).step_by(2) {
+                let band = stitch_band(b, n);
+                assert!(band <= (n - b) / 2 && band <= 4, "B {b}, N {n}: {band}");
+            }
+        }
+    }
 
     proptest! {
         /// Lowering the neighbours' keys by the pixels a batch defines gives

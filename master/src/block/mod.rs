@@ -32,7 +32,10 @@ mod plan;
 pub mod queue;
 mod repeats;
 
-pub use config::{Config, FillSource, Mode, Position, Stitch, SynthMethod, MAX_CANVAS_PIXELS};
+pub use config::{
+    Config, FillSource, Mode, Position, Stitch, SynthMethod, MAX_CANVAS_PIXELS,
+    PATH_GROWTH_NEIGHBOURHOOD,
+};
 pub use plan::resolve_levels;
 pub use repeats::RepeatControl;
 

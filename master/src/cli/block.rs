@@ -9,7 +9,7 @@ use std::time::Instant;
 use anyhow::{ensure, Context, Result};
 
 use super::block_args::{
-    config_with_stitch, parse_position, ExtendArgs, FillArgs, MethodArg, SynthArgs,
+    config_with_defaults, parse_position, ExtendArgs, FillArgs, MethodArg, StitchArg, SynthArgs,
 };
 use super::{parallel, parse_size, progress, Common, ParallelArgs};
 use crate::block::{self, Config, FillSource, Mode, Stitch, SynthMethod};
@@ -252,8 +252,17 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
         a.candidate_cache.is_none(),
         "--candidate-cache belongs to --method parallel"
     );
-    // `synth`'s own stitching default is path (ARCHITECTURE §3.12).
-    let mut cfg = config_with_stitch(&a.common, Stitch::Path)?;
+    // `synth`'s own stitching default is path, and growth stitched by path
+    // matches N = 13 windows, whose stitching band is a pixel wider
+    // (ARCHITECTURE §3.12).
+    let path_growth =
+        matches!(a.method, MethodArg::Grow) && !matches!(a.common.stitch, Some(StitchArg::Hard));
+    let neighbourhood = if path_growth {
+        block::PATH_GROWTH_NEIGHBOURHOOD
+    } else {
+        Config::default().neighbourhood
+    };
+    let mut cfg = config_with_defaults(&a.common, Stitch::Path, neighbourhood)?;
     let (width, height) = parse_size(&a.size)?;
     let mut level_files = Vec::new();
     for spec in &a.level_samples {

@@ -21,8 +21,9 @@ pub struct Common {
     /// Block size B (odd, 1..=11; default 5).
     #[arg(long)]
     pub block: Option<usize>,
-    /// Neighbourhood size N (odd, larger than the block; default 11). With
-    /// `synth --method parallel`: reduced (default), half, 5 or 7.
+    /// Neighbourhood size N (odd, larger than the block; default 11, and 13
+    /// for `synth`'s path-stitched growth). With `synth --method parallel`:
+    /// reduced (default), half, 5 or 7.
     #[arg(long, alias = "neighborhood")]
     pub neighbourhood: Option<String>,
     /// Parent window M on the coarser level (odd; default covers N).
@@ -257,18 +258,24 @@ impl TryFrom<&Common> for Config {
     type Error = anyhow::Error;
 
     fn try_from(c: &Common) -> Result<Self> {
-        config_with_stitch(c, Config::default().stitch)
+        let d = Config::default();
+        config_with_defaults(c, d.stitch, d.neighbourhood)
     }
 }
 
 /// The validated config of the common flags, with `stitch` where `--stitch`
-/// is not given (each command's own default).
-pub fn config_with_stitch(c: &Common, stitch: block::Stitch) -> Result<Config> {
+/// is not given and `neighbourhood` where `--neighbourhood` is not (each
+/// command's own defaults).
+pub fn config_with_defaults(
+    c: &Common,
+    stitch: block::Stitch,
+    neighbourhood: usize,
+) -> Result<Config> {
     let d = Config::default();
     let cfg = Config {
         block: c.block.unwrap_or(d.block),
         neighbourhood: match c.neighbourhood.as_deref() {
-            None => 11,
+            None => neighbourhood,
             Some(n) => n.trim().parse().with_context(|| {
                 format!(
                     "--neighbourhood '{n}' is not a whole number; \
