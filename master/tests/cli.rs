@@ -1365,6 +1365,25 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
             &["--stitch", "hard", "--neighbourhood", "13"]
         )
     );
+    // Levels whose coarsest cannot hold 13×13 fall back to 11 (96 px over 4
+    // levels is 12 px), so commands that ran before still run.
+    let four = run("synth", "four", &["--levels", "4"]);
+    assert!(
+        four == run(
+            "synth",
+            "four11",
+            &["--levels", "4", "--neighbourhood", "11"]
+        )
+    );
+    let three = run("synth", "three", &["--levels", "3"]);
+    assert!(
+        three
+            == run(
+                "synth",
+                "three13",
+                &["--levels", "3", "--neighbourhood", "13"]
+            )
+    );
     let scan = run("synth", "scan", &["--method", "scanline"]);
     let scan11 = ["--method", "scanline", "--neighbourhood", "11"];
     assert!(scan == run("synth", "scan11", &scan11));

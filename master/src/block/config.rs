@@ -128,6 +128,19 @@ impl Default for Config {
 /// fidelity on 21 (20), colour on 19 (17), at about 1.3× the time.
 pub const PATH_GROWTH_NEIGHBOURHOOD: usize = 13;
 
+/// The neighbourhood of growth stitched by path when none is given:
+/// [`PATH_GROWTH_NEIGHBOURHOOD`] where the coarsest of `levels` levels (0 =
+/// automatic, which fits the levels to N) of a `sample` (width, height) holds
+/// it, else the paper's 11, so that `--levels` that fit 11 still run.
+pub fn growth_neighbourhood(sample: [usize; 2], levels: usize) -> usize {
+    let (w, h) = crate::pyramid::level_size(sample[0], sample[1], levels.max(1) - 1);
+    if w.min(h) >= PATH_GROWTH_NEIGHBOURHOOD {
+        PATH_GROWTH_NEIGHBOURHOOD
+    } else {
+        Config::default().neighbourhood
+    }
+}
+
 /// Largest canvas accepted (pixels); larger requests are refused up front.
 pub const MAX_CANVAS_PIXELS: usize = imaging::MAX_PIXELS;
 
@@ -185,5 +198,22 @@ impl Config {
     pub(super) fn parent_window(&self) -> usize {
         self.parent_window
             .unwrap_or_else(|| Geometry::parent_window_for(self.neighbourhood))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// N = 13 where the coarsest level holds it, else 11; automatic levels
+    /// need only the sample to hold it.
+    #[test]
+    fn growth_takes_thirteen_where_the_coarsest_level_holds_it() {
+        assert_eq!(growth_neighbourhood([96, 96], 3), 13);
+        assert_eq!(growth_neighbourhood([96, 96], 4), 11);
+        assert_eq!(growth_neighbourhood([96, 200], 4), 11);
+        assert_eq!(growth_neighbourhood([104, 104], 4), 13);
+        assert_eq!(growth_neighbourhood([13, 13], 0), 13);
+        assert_eq!(growth_neighbourhood([12, 40], 0), 11);
     }
 }

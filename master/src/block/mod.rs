@@ -33,8 +33,8 @@ pub mod queue;
 mod repeats;
 
 pub use config::{
-    Config, FillSource, Mode, Position, Stitch, SynthMethod, MAX_CANVAS_PIXELS,
-    PATH_GROWTH_NEIGHBOURHOOD,
+    growth_neighbourhood, Config, FillSource, Mode, Position, Stitch, SynthMethod,
+    MAX_CANVAS_PIXELS, PATH_GROWTH_NEIGHBOURHOOD,
 };
 pub use plan::resolve_levels;
 pub use repeats::RepeatControl;

@@ -289,6 +289,9 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
     all.extend(level_samples.iter().map(|(_, s)| s));
     let view = imaging::SearchView::of(&all);
     let img = deep.search_colour_in(&view);
+    if path_growth && a.common.neighbourhood.is_none() {
+        cfg.neighbourhood = block::growth_neighbourhood([img.width, img.height], cfg.levels);
+    }
     for (l, level_sample) in level_samples {
         cfg.level_samples
             .push((l, level_sample.search_colour_in(&view)));

@@ -22,8 +22,8 @@ pub struct Common {
     #[arg(long)]
     pub block: Option<usize>,
     /// Neighbourhood size N (odd, larger than the block; default 11, and 13
-    /// for `synth`'s path-stitched growth). With `synth --method parallel`:
-    /// reduced (default), half, 5 or 7.
+    /// for `synth`'s path-stitched growth where the coarsest level holds it).
+    /// With `synth --method parallel`: reduced (default), half, 5 or 7.
     #[arg(long, alias = "neighborhood")]
     pub neighbourhood: Option<String>,
     /// Parent window M on the coarser level (odd; default covers N).
