@@ -51,8 +51,9 @@ pub struct Common {
     #[arg(long, default_value_t = 0)]
     pub chroma_blur: usize,
     /// How a copied block meets the pixels around it: `hard` (the block's square
-    /// edge) or `path` (its reference continues into a band of up to 3
-    /// synthesised pixels, up to a minimum-error path; Somol–Haindl). Default:
+    /// edge) or `path` (its reference continues into a band of (N − B)/2
+    /// synthesised pixels, at most 4, up to a minimum-error path;
+    /// Somol–Haindl). Default:
     /// path for `synth`, which measures better against the peer; hard for
     /// `fill` and `extend`.
     #[arg(long, value_enum)]
