@@ -1,7 +1,8 @@
 //! Wrapping box filters shared by the methods: the running-sum box blur of
 //! the coordinate method's stack levels (Manke–Wünsche §3) and the blurred
 //! spectra of procedural matching (Bourque–Dudek §3.2); and the 2-D FFT
-//! that `compare`, the tile evaluation and the periodicity analysis share.
+//! that `compare`, the tile evaluation and the periodicity analysis share;
+//! and the correlation length, the scale of a texture's objects.
 
 use std::ops::{Add, Sub};
 
@@ -108,9 +109,101 @@ pub fn fft2<T: FftNum>(
     }
 }
 
+/// The correlation length of a `w`×`h` grey image: the least radius, in
+/// pixels, at which the radially averaged autocorrelation of its
+/// mean-removed values falls below `level` (0 < level < 1), or the image's
+/// larger side if it never does. The autocorrelation is the linear one
+/// (zero-padded FFT), so lags near the side count fewer pixel pairs. A flat
+/// image has length 0.
+pub fn correlation_length(values: &[u8], (w, h): (usize, usize), level: f64) -> usize {
+    assert_eq!(values.len(), w * h, "grey buffer size");
+    if w == 0 || h == 0 {
+        return 0;
+    }
+    let mean = values.iter().map(|&v| f64::from(v)).sum::<f64>() / (w * h) as f64;
+    let (pw, ph) = (2 * w, 2 * h);
+    let mut buf = vec![Complex::new(0.0f64, 0.0); pw * ph];
+    for y in 0..h {
+        for x in 0..w {
+            buf[y * pw + x].re = f64::from(values[y * w + x]) - mean;
+        }
+    }
+    let mut planner = rustfft::FftPlanner::new();
+    let (rows, cols) = (planner.plan_fft_forward(pw), planner.plan_fft_forward(ph));
+    fft2(&mut buf, (pw, ph), h, (&*rows, &*cols));
+    for c in &mut buf {
+        *c = Complex::new(c.norm_sqr(), 0.0);
+    }
+    let (rows, cols) = (planner.plan_fft_inverse(pw), planner.plan_fft_inverse(ph));
+    fft2(&mut buf, (pw, ph), ph, (&*rows, &*cols));
+    let zero = buf[0].re;
+    if zero <= 0.0 {
+        return 0;
+    }
+    // Radial average over whole-pixel radii, lags read both ways round.
+    let side = w.max(h);
+    let (mut sum, mut count) = (vec![0.0f64; side + 1], vec![0u32; side + 1]);
+    for y in 0..ph {
+        let dy = y.min(ph - y);
+        for x in 0..pw {
+            let dx = x.min(pw - x);
+            let r = ((dx * dx + dy * dy) as f64).sqrt().round() as usize;
+            if r <= side {
+                sum[r] += buf[y * pw + x].re / zero;
+                count[r] += 1;
+            }
+        }
+    }
+    (0..=side)
+        .find(|&r| count[r] > 0 && sum[r] / f64::from(count[r]) < level)
+        .unwrap_or(side)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn correlation_length_grows_with_the_size_of_the_objects() {
+        // Discs of radius `r` on a grid of pitch 4r: the autocorrelation
+        // falls to a quarter at about the discs' radius.
+        let discs = |r: usize| -> Vec<u8> {
+            let (n, pitch) = (256usize, 4 * r);
+            (0..n * n)
+                .map(|i| {
+                    let (x, y) = (i % n, i / n);
+                    let (cx, cy) = (x % pitch, y % pitch);
+                    let d2 = cx.abs_diff(pitch / 2).pow(2) + cy.abs_diff(pitch / 2).pow(2);
+                    if d2 <= r * r {
+                        200
+                    } else {
+                        40
+                    }
+                })
+                .collect()
+        };
+        let lengths: Vec<usize> = [3, 6, 12]
+            .iter()
+            .map(|&r| correlation_length(&discs(r), (256, 256), 0.25))
+            .collect();
+        assert!(
+            lengths[0] < lengths[1] && lengths[1] < lengths[2],
+            "{lengths:?}"
+        );
+        for (l, r) in lengths.iter().zip([3usize, 6, 12]) {
+            assert!(
+                (r / 2..=2 * r).contains(l),
+                "radius {r}: correlation length {l}"
+            );
+        }
+        // White noise decorrelates within a pixel; a flat image has none.
+        let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(7);
+        let noise: Vec<u8> = (0..128 * 128)
+            .map(|_| rand::Rng::random::<u8>(&mut rng))
+            .collect();
+        assert!(correlation_length(&noise, (128, 128), 0.25) <= 1);
+        assert_eq!(correlation_length(&[90; 64], (8, 8), 0.25), 0);
+    }
 
     #[test]
     fn window_sums_match_a_direct_sum() {

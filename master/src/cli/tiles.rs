@@ -59,7 +59,9 @@ pub struct MakeArgs {
     #[arg(long)]
     pub overlap: Option<usize>,
     /// Belt of the patch stitches (default: a tenth of the tile, at least 3,
-    /// the paper's w_P = w_T).
+    /// the paper's w_P = w_T; widened to three times the sample's
+    /// correlation length, at most a fifth of the tile, so that paths can
+    /// pass round large objects).
     #[arg(long)]
     pub belt: Option<usize>,
     /// Least pull of the patch paths towards the tile's edge, in RGB

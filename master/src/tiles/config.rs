@@ -41,12 +41,24 @@ pub const DEFAULT_MAX_OVERLAP: f64 = 0.09;
 /// so both sides of every joint are the template's own continuation.
 pub const MARGIN: usize = 0;
 
+/// Correlation lengths a default belt spans (see [`default_belt`]).
+pub const BELT_CORRELATION_LENGTHS: usize = 3;
+
+/// The autocorrelation level at which the sample's correlation length is read.
+pub const BELT_CORRELATION_LEVEL: f64 = 0.25;
+
 /// The patch belt of a `size`-pixel tile by default: the paper's
-/// `w_P = w_T`, a tenth of the tile, at least 3 pixels. Wide enough for a
-/// path to pass round the texture's objects; the template share budget,
-/// not the belt, keeps the template's band thin.
-pub fn default_belt(size: usize) -> usize {
-    (size / 10).max(3)
+/// `w_P = w_T`, a tenth of the tile, at least 3 pixels, widened to
+/// [`BELT_CORRELATION_LENGTHS`] times the sample's correlation length
+/// `corr` (`filters::correlation_length` at [`BELT_CORRELATION_LEVEL`]), at
+/// most a fifth of the tile. A path can only pass round an object the belt
+/// holds: the 512² beans (correlation length 12, beans about 50 px across)
+/// were sliced along most joints of 128-px tiles by the tenth's 12-px belt.
+/// The template share budget, not the belt, keeps the template's band thin.
+pub fn default_belt(size: usize, corr: usize) -> usize {
+    (size / 10)
+        .max(3)
+        .max((BELT_CORRELATION_LENGTHS * corr).min(size / 5))
 }
 
 /// Tile side.
@@ -164,7 +176,18 @@ impl SomolConfig {
             2 * overlap < size,
             "--overlap {overlap} must be under half the {size}-pixel tile: give a smaller --overlap or a larger --tile-size"
         );
-        let belt = self.belt.unwrap_or(default_belt(size));
+        let belt = match self.belt {
+            Some(b) => b,
+            None => {
+                let lum = crate::imaging::colour::luminance(sample);
+                let corr = crate::filters::correlation_length(
+                    &lum.data,
+                    (lum.width, lum.height),
+                    BELT_CORRELATION_LEVEL,
+                );
+                default_belt(size, corr)
+            }
+        };
         ensure!(
             2 * (belt + MARGIN) < size,
             "--belt {belt} and the {MARGIN}-pixel margin must stay under half the {size}-pixel tile: give a smaller --belt or a larger --tile-size"
@@ -333,6 +356,27 @@ mod tests {
             (100, 80, 10, 10, 0),
             "the belt is the paper's w_P = w_T"
         );
+        // Large objects widen it, up to a fifth of the tile; small ones
+        // keep the tenth.
+        assert_eq!(default_belt(128, 3), 12);
+        assert_eq!(default_belt(128, 6), 18);
+        assert_eq!(default_belt(128, 12), 25);
+        assert_eq!(default_belt(20, 0), 3);
+        // A sample of discs 24 px across (pitch 48) widens the default belt
+        // of its 100-px tiles to a fifth; the flat one above keeps the tenth.
+        let discs = ColorImage::from_vec(
+            200,
+            200,
+            (0..200 * 200)
+                .flat_map(|i: usize| {
+                    let (x, y) = (i % 200 % 48, i / 200 % 48);
+                    let inside = x.abs_diff(24).pow(2) + y.abs_diff(24).pow(2) <= 144;
+                    [if inside { 210u8 } else { 30 }; 3]
+                })
+                .collect(),
+        );
+        let s = SomolConfig::default().settings(&discs, None).unwrap();
+        assert_eq!((s.max_size, s.belt), (100, 20), "objects widen the belt");
         for bad in [-0.1, 1.5, f64::NAN] {
             let e = SomolConfig {
                 max_overlap: bad,

@@ -148,18 +148,42 @@ pub(super) fn paste_patch(
     rho: f32,
 ) {
     let r1 = patch_pixels(sample, source, target);
+    // Per belt and row, the first path column within the blend's reach of
+    // the row: a pixel more than the reach left of it is farther than ρ from
+    // every path pixel the blend looks at, so it takes the patch unblended
+    // (α = 1) without the search.
+    let reach = rho.max(0.0).ceil() as usize;
+    let near: Vec<Vec<usize>> = cuts
+        .iter()
+        .map(|cut| {
+            let rows = cut.starts.len();
+            (0..rows)
+                .map(|j| {
+                    let window = j.saturating_sub(reach)..=(j + reach).min(rows - 1);
+                    cut.starts[window]
+                        .iter()
+                        .copied()
+                        .min()
+                        .unwrap_or(usize::MAX)
+                })
+                .collect()
+        })
+        .collect();
     let mut out = tile.clone();
     for y in target.y..target.y + target.height {
         for x in target.x..target.x + target.width {
             let mut inside = true;
             let mut weight: Option<(f32, [u8; 3])> = None;
-            for (b, cut) in belts.iter().zip(cuts) {
+            for ((b, cut), near) in belts.iter().zip(cuts).zip(&near) {
                 let Some((i, j)) = canonical(b, x, y) else {
                     continue;
                 };
                 if !cut.path.takes_r1(i, j) {
                     inside = false;
                     break;
+                }
+                if i + reach < near[j] {
+                    continue;
                 }
                 let (alpha, (m, n)) = stitch::blend_weight(cut, rho, i, j);
                 if weight.is_none_or(|(a, _)| alpha < a) {

@@ -77,6 +77,9 @@ pub struct Cut {
     pub map: ErrorMap,
     pub path: Path,
     pub cost: f64,
+    /// Per row, the first column of the path's run (`path.start`), which the
+    /// blend reads for every pixel near the path.
+    pub starts: Vec<usize>,
 }
 
 /// The path of the belt between `r1` and `r2` (both read at the belt's
@@ -114,7 +117,13 @@ pub fn find_cut(
         search(&map)
     };
     let cost = path.cost(&map);
-    Cut { map, path, cost }
+    let starts = (0..path.c.len()).map(|j| path.start(j)).collect();
+    Cut {
+        map,
+        path,
+        cost,
+        starts,
+    }
 }
 
 /// Blending weight of R1 at canonical `(i, j)` on R1's side, and the path
@@ -133,12 +142,13 @@ pub fn blend_weight(cut: &Cut, rho: f32, i: usize, j: usize) -> (f32, (usize, us
     let reach = rho.ceil() as usize;
     let (mut best_d2, mut best) = (usize::MAX, (i, j));
     for n in j.saturating_sub(reach)..=(j + reach).min(cut.path.c.len() - 1) {
-        for m in cut.path.start(n)..=cut.path.c[n] {
-            let d2 = m.abs_diff(i).pow(2) + n.abs_diff(j).pow(2);
-            if d2 < best_d2 {
-                best_d2 = d2;
-                best = (m, n);
-            }
+        // The row's path pixels are the run `start(n)..=c[n]`; the one
+        // nearest to column `i` is `i` clamped to it (unique in the row).
+        let m = i.clamp(cut.starts[n], cut.path.c[n]);
+        let d2 = m.abs_diff(i).pow(2) + n.abs_diff(j).pow(2);
+        if d2 < best_d2 {
+            best_d2 = d2;
+            best = (m, n);
         }
     }
     if best_d2 == usize::MAX {

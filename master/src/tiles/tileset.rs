@@ -311,6 +311,38 @@ const WIDER_DRAW: usize = 16;
 /// A scored candidate: ((its wrap joints show, mean path error), x, y).
 type Scored = ((bool, f64), usize, usize);
 
+/// A candidate patch place with its cuts, before its joints are checked.
+struct Candidate {
+    error: f64,
+    x: usize,
+    y: usize,
+    belts: [super::stitch::Belt; 4],
+    cuts: Vec<super::stitch::Cut>,
+}
+
+/// The least of `candidates` by [`by_score`] (joints that hold first, then
+/// the path error, then the place), checking joints (`shows`) in order of
+/// error, a thread's worth at a time, only until one holds: the same choice
+/// as scoring every candidate, with most joint checks left out.
+fn least_scored(
+    mut candidates: Vec<Candidate>,
+    shows: impl Fn(&Candidate) -> bool + Sync,
+) -> Option<Scored> {
+    candidates.sort_by(|a, b| {
+        a.error
+            .total_cmp(&b.error)
+            .then((a.x, a.y).cmp(&(b.x, b.y)))
+    });
+    let step = rayon::current_num_threads().max(1);
+    for chunk in candidates.chunks(step) {
+        let showing: Vec<bool> = chunk.par_iter().map(&shows).collect();
+        if let Some(k) = showing.iter().position(|&s| !s) {
+            return Some(((false, chunk[k].error), chunk[k].x, chunk[k].y));
+        }
+    }
+    candidates.first().map(|c| ((true, c.error), c.x, c.y))
+}
+
 fn by_score(a: &Scored, b: &Scored) -> std::cmp::Ordering {
     (a.0 .0.cmp(&b.0 .0))
         .then(a.0 .1.total_cmp(&b.0 .1))
@@ -346,17 +378,33 @@ fn choose_patch(
 ) -> Chosen {
     let mut rng =
         ChaCha8Rng::seed_from_u64(s.seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-    let score = |x: usize, y: usize| {
+    // A candidate's cuts and mean path error; whether its joints show is
+    // found only as the choice needs it ([`least_scored`]), since pasting
+    // the patch for the joint check costs more than the cuts.
+    let cut = |&(x, y): &(usize, usize)| -> Candidate {
         let source = Rect { x, y, ..target };
         let (belts, cuts) = patch_cuts(tile, sample, source, target, s.belt, cutting.stitch);
         let error = report(source, target, &cuts).mean_path_error;
-        let shows = cutting.joints.is_some_and(|(bound, (tw, th))| {
+        Candidate {
+            error,
+            x,
+            y,
+            belts,
+            cuts,
+        }
+    };
+    let shows = |c: &Candidate| {
+        cutting.joints.is_some_and(|(bound, (tw, th))| {
             let mut t = tile.clone();
-            let cut = (&belts, &cuts[..]);
+            let source = Rect {
+                x: c.x,
+                y: c.y,
+                ..target
+            };
+            let cut = (&c.belts, &c.cuts[..]);
             paste_patch(&mut t, sample, (source, target), cut, cutting.stitch.rho);
             wrap_ratio(&t.crop(0, 0, tw, th)) > bound
-        });
-        ((shows, error), x, y)
+        })
     };
     let (xs, ys) = (sample.width - target.width, sample.height - target.height);
     // The least rung of [`SHARE_RUNGS`] some candidate reaches: a patch
@@ -396,14 +444,15 @@ fn choose_patch(
         positions.retain(|&(x, y)| rung_of(x, y) == rung);
         positions.truncate(n);
     }
-    let scored: Vec<Scored> = positions.par_iter().map(|&(x, y)| score(x, y)).collect();
-    let random_mean = scored.iter().map(|c| c.0 .1).sum::<f64>() / scored.len() as f64;
-    let pick = scored
-        .iter()
-        .filter(|c| rung_of(c.1, c.2) <= rung)
-        .min_by(|a, b| by_score(a, b))
-        .copied()
-        .unwrap_or(((true, f64::INFINITY), 0, 0));
+    let cut_all = |p: &[(usize, usize)]| -> Vec<Candidate> { p.par_iter().map(cut).collect() };
+    let candidates = cut_all(&positions);
+    let random_mean =
+        candidates.iter().map(|c| c.error).sum::<f64>() / candidates.len().max(1) as f64;
+    let on_rung: Vec<Candidate> = candidates
+        .into_iter()
+        .filter(|c| rung_of(c.x, c.y) <= rung)
+        .collect();
+    let pick = least_scored(on_rung, shows).unwrap_or(((true, f64::INFINITY), 0, 0));
     // Local refinement on the ±refine neighbourhood, pixel by pixel (so
     // periodic structure can line up with the template's), on the same rung.
     let (x0, y0) = (pick.1, pick.2);
@@ -412,10 +461,9 @@ fn choose_patch(
         .flat_map(|x| (y0.saturating_sub(r)..=(y0 + r).min(ys)).map(move |y| (x, y)))
         .filter(|&(x, y)| rung_of(x, y) <= rung || (x, y) == (x0, y0))
         .collect();
-    let best = near
-        .par_iter()
-        .map(|&(x, y)| score(x, y))
-        .chain(rayon::iter::once(pick))
+    let best = least_scored(cut_all(&near), shows)
+        .into_iter()
+        .chain(std::iter::once(pick))
         .min_by(by_score)
         .unwrap_or(pick);
     Chosen {
