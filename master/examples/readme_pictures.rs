@@ -4,6 +4,7 @@
 use std::path::Path;
 
 use anyhow::Result;
+use texsyn::block::growth_neighbourhood;
 use texsyn::block::Silent;
 use texsyn::imaging::{self, ColorImage};
 use texsyn::parallel::{
@@ -12,7 +13,7 @@ use texsyn::parallel::{
     weights,
 };
 use texsyn::search::{LocalSearch, Plan, PlannedSearch};
-use texsyn::{synthesize, Config, Mode, Position, Stitch, SynthMethod, PATH_GROWTH_NEIGHBOURHOOD};
+use texsyn::{synthesize, Config, Mode, Position, Stitch, SynthMethod};
 use texsyn_engine::Engine;
 
 fn run(sample: &ColorImage, mode: Mode, cfg: Config) -> Result<ColorImage> {
@@ -115,10 +116,11 @@ fn main() -> Result<()> {
                     height: 320,
                     method: SynthMethod::Grow,
                 },
-                // `texsyn synth`'s defaults: path stitching, N = 13.
+                // `texsyn synth`'s defaults: path stitching, N = 13 where
+                // the coarsest level holds it.
                 Config {
                     stitch: Stitch::Path,
-                    neighbourhood: PATH_GROWTH_NEIGHBOURHOOD,
+                    neighbourhood: growth_neighbourhood([sample.width, sample.height], 0),
                     ..Config::default()
                 },
             )?;

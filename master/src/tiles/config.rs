@@ -47,6 +47,9 @@ pub const BELT_CORRELATION_LENGTHS: usize = 3;
 /// The autocorrelation level at which the sample's correlation length is read.
 pub const BELT_CORRELATION_LEVEL: f64 = 0.25;
 
+/// Largest side of the centre crop whose correlation length sets the belt.
+pub const BELT_CORRELATION_SIDE: usize = 512;
+
 /// The patch belt of a `size`-pixel tile by default: the paper's
 /// `w_P = w_T`, a tenth of the tile, at least 3 pixels, widened to
 /// [`BELT_CORRELATION_LENGTHS`] times the sample's correlation length
@@ -179,7 +182,14 @@ impl SomolConfig {
         let belt = match self.belt {
             Some(b) => b,
             None => {
-                let lum = crate::imaging::colour::luminance(sample);
+                // A centre crop bounds the FFT's memory on large samples;
+                // it holds lags far beyond any belt's.
+                let (cw, ch) = (
+                    sample.width.min(BELT_CORRELATION_SIDE),
+                    sample.height.min(BELT_CORRELATION_SIDE),
+                );
+                let crop = sample.crop((sample.width - cw) / 2, (sample.height - ch) / 2, cw, ch);
+                let lum = crate::imaging::colour::luminance(&crop);
                 let corr = crate::filters::correlation_length(
                     &lum.data,
                     (lum.width, lum.height),
