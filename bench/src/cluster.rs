@@ -23,7 +23,8 @@ use texsyn::launch::{find_worker_binary, LocalWorkers};
 use texsyn::pyramid;
 use texsyn::search::{LevelData, LocalSearch, SearchBackend};
 use texsyn_engine::{
-    Engine, Geometry, Hit, Metric, Params, Plane, QueryBatch, Sample, VectorSpace, Weights,
+    Engine, Geometry, Hit, Metric, Params, Plane, PruneStats, QueryBatch, Sample, VectorSpace,
+    Weights,
 };
 
 use crate::cases::Textures;
@@ -267,6 +268,7 @@ pub fn run(a: &ClusterArgs) -> Result<()> {
     let load_seconds = t.elapsed().as_secs_f64();
 
     let mut rounds = measure(a, &pool, &mut local, &mut cluster, &batches)?;
+    let work = local.level_prune().zip(cluster.level_prune());
     local.end_level();
     drop(local);
     let stats = cluster.stats();
@@ -274,6 +276,9 @@ pub fn run(a: &ClusterArgs) -> Result<()> {
     rounds.rtts.sort_by(f64::total_cmp);
     print_workers(&stats, load_seconds);
     print_figures(a, &rounds, &small, total);
+    if let Some((l, c)) = work {
+        print_work(&l, &c);
+    }
     print_memory(&stats, &workers, stride as u64);
     drop(cluster);
     drop(workers);
@@ -333,6 +338,24 @@ fn print_figures(a: &ClusterArgs, r: &Rounds, small: &[f64], total: usize) {
         percentile(&r.ratios, 0.0),
         percentile(&r.ratios, 0.5),
         percentile(&r.ratios, 1.0)
+    );
+}
+
+/// The search work of both paths over all rounds (they search the same
+/// batches): how much of the cluster's gap is extra work, because a range
+/// prunes against the other ranges' finds only once they arrive (ARCHITECTURE
+/// §4.7), and how much is transport and waiting.
+fn print_work(local: &PruneStats, cluster: &PruneStats) {
+    let full = |p: &PruneStats| p.pairs.saturating_sub(p.pruned);
+    let per = |a: u64, b: u64| a as f64 / b.max(1) as f64;
+    println!(
+        "search work (all rounds): local engine {:.3} G component chunks, {:.1} M pairs scored in full; cluster {:.3} G, {:.1} M: {:.3}x and {:.3}x the local engine's",
+        local.chunks as f64 / 1e9,
+        full(local) as f64 / 1e6,
+        cluster.chunks as f64 / 1e9,
+        full(cluster) as f64 / 1e6,
+        per(cluster.chunks, local.chunks),
+        per(full(cluster), full(local)),
     );
 }
 
