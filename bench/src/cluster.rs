@@ -48,6 +48,10 @@ pub struct ClusterArgs {
     /// The texsyn-worker executable (default: next to texsyn-bench, else PATH).
     #[arg(long)]
     pub worker_binary: Option<PathBuf>,
+    /// One more argument for both workers, repeatable (e.g.
+    /// `--worker-arg=--spin-us=0` to compare the wait policies).
+    #[arg(long, value_name = "ARG", allow_hyphen_values = true)]
+    pub worker_arg: Vec<String>,
 }
 
 /// Peak resident memory (VmHWM) of a process in bytes, from /proc.
@@ -254,7 +258,8 @@ pub fn run(a: &ClusterArgs) -> Result<()> {
     let batches = make_batches(&full, WARM + a.batches, a.batch, 11)?;
     drop(full);
     let binary = find_worker_binary(a.worker_binary.as_deref())?;
-    let workers = LocalWorkers::spawn(&binary, 2, Some(1), &[])?;
+    let extra: Vec<std::ffi::OsString> = a.worker_arg.iter().map(Into::into).collect();
+    let workers = LocalWorkers::spawn(&binary, 2, Some(1), &extra)?;
     let mut cluster = ClusterSearch::connect(
         ClusterOptions {
             workers: workers.specs(),
@@ -277,7 +282,7 @@ pub fn run(a: &ClusterArgs) -> Result<()> {
     print_workers(&stats, load_seconds);
     print_figures(a, &rounds, &small, total);
     if let Some((l, c)) = work {
-        print_work(&l, &c);
+        print_work(a, &rounds, &l, &c);
     }
     print_memory(&stats, &workers, stride as u64);
     drop(cluster);
@@ -344,8 +349,10 @@ fn print_figures(a: &ClusterArgs, r: &Rounds, small: &[f64], total: usize) {
 /// The search work of both paths over all rounds (they search the same
 /// batches): how much of the cluster's gap is extra work, because a range
 /// prunes against the other ranges' finds only once they arrive (ARCHITECTURE
-/// §4.7), and how much is transport and waiting.
-fn print_work(local: &PruneStats, cluster: &PruneStats) {
+/// §4.7), and how fast each path does a unit of it (thread time of the best
+/// round per component chunk: the local engine's 2 threads, the workers' own
+/// search seconds), which leaves transport and waiting.
+fn print_work(a: &ClusterArgs, r: &Rounds, local: &PruneStats, cluster: &PruneStats) {
     let full = |p: &PruneStats| p.pairs.saturating_sub(p.pruned);
     let per = |a: u64, b: u64| a as f64 / b.max(1) as f64;
     println!(
@@ -357,6 +364,24 @@ fn print_work(local: &PruneStats, cluster: &PruneStats) {
         per(cluster.chunks, local.chunks),
         per(full(cluster), full(local)),
     );
+    // Every round searches WARM + batches batches on each path.
+    let searched = (a.reps.max(1) * (WARM + a.batches)) as f64;
+    let local_chunks = local.chunks as f64 / searched;
+    let cluster_chunks = cluster.chunks as f64 / searched;
+    if r.local_qps > 0.0 && local_chunks > 0.0 && cluster_chunks > 0.0 {
+        let local_thread = 2.0 * a.batch as f64 / r.local_qps;
+        let cluster_thread: f64 = r.worker_per_batch.iter().sum();
+        let (l, c) = (
+            local_thread / local_chunks * 1e9,
+            cluster_thread / cluster_chunks * 1e9,
+        );
+        println!(
+            "thread time per G component chunks (best rounds): local engine {:.2} s, workers {:.2} s ({:.3}x)",
+            l,
+            c,
+            c / l
+        );
+    }
 }
 
 /// Each worker's vector range (address, vectors) in the last partition of the run report.

@@ -18,7 +18,7 @@ use texsyn_proto::wire::{
     best_hits, bounds_from_proto, lowered_from_proto, lowered_to_proto, prune_from_proto,
     topk_hits, LINK_INTERVAL,
 };
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, Notify};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::codegen::InterceptedService;
 use tonic::transport::Channel;
@@ -320,9 +320,19 @@ pub(crate) struct Part {
     pub chunks: Vec<pb::SearchBatch>,
     pub range: Range<u64>,
     pub deadline: Instant,
-    /// A linked batch's distances, per query of the whole batch, shared with
-    /// the other parts and the master's own share (ARCHITECTURE §4.7).
-    pub link: Option<Arc<Link>>,
+    /// A linked batch's distances and wake-up, shared with the other parts.
+    pub link: Option<BatchLink>,
+}
+
+/// A linked batch as its parts share it (ARCHITECTURE §4.7).
+#[derive(Clone)]
+pub(crate) struct BatchLink {
+    /// The distances per query of the whole batch, shared with the other
+    /// parts and the master's own share.
+    pub link: Arc<Link>,
+    /// Woken whenever a part takes in its worker's finds, so that the other
+    /// parts forward them at once instead of at their next tick.
+    pub found: Arc<Notify>,
 }
 
 /// What came back for one part.
@@ -348,7 +358,7 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
     let mut failure = None;
     let mut first = 0;
     for chunk in part.chunks {
-        let link = part.link.as_deref().map(|l| (l, first));
+        let link = part.link.as_ref().map(|b| (&*b.link, first, &*b.found));
         first += chunk.count as usize;
         match ask_chunk(
             &mut stream,
@@ -392,9 +402,11 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
 
 /// Sends one chunk and reads its answer before `deadline`: the checked hits
 /// the search seconds the worker reported (0 when not a valid time) and its
-/// pruning figures. A linked chunk (`link`: the batch's link and the chunk's
-/// first query in it) passes the worker's interim finds into the link and,
-/// every [`LINK_INTERVAL`], the link's newer distances to the worker. A
+/// pruning figures. A linked chunk (`link`: the batch's link, the chunk's
+/// first query in it and the batch's wake-up) passes the worker's interim
+/// finds into the link and wakes the other parts; it sends the link's newer
+/// distances to the worker when woken so, and every [`LINK_INTERVAL`] (for
+/// the master's own share, which lowers the link without waking). A
 /// worker whose answer is worse than a distance it reported finding is
 /// refused: its reports could have starved the other ranges' searches.
 async fn ask_chunk(
@@ -403,7 +415,7 @@ async fn ask_chunk(
     deadline: Instant,
     started: Instant,
     range: &Range<u64>,
-    link: Option<(&Link, usize)>,
+    link: Option<(&Link, usize, &Notify)>,
 ) -> ClusterResult<(Vec<Hit>, f64, PruneStats)> {
     let missed = || ClusterError::Deadline(deadline.saturating_duration_since(started).as_millis());
     let at = tokio::time::Instant::from_std(deadline);
@@ -424,7 +436,15 @@ async fn ask_chunk(
     }
     let mut tick = tokio::time::interval(LINK_INTERVAL);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let never = Notify::new();
+    let found = link.map_or(&never, |(_, _, f)| f);
     let r = loop {
+        let forward = async {
+            tokio::select! {
+                _ = tick.tick() => {}
+                () = found.notified() => {}
+            }
+        };
         let r = tokio::select! {
             m = tokio::time::timeout_at(at, stream.rx.message()) => match m {
                 Err(_) => return Err(missed()),
@@ -432,8 +452,8 @@ async fn ask_chunk(
                 Ok(Ok(None)) => return Err(ClusterError::StreamClosed),
                 Ok(Ok(Some(r))) => r,
             },
-            _ = tick.tick(), if link.is_some() => {
-                let (l, first) = link.expect("guarded");
+            () = forward, if link.is_some() => {
+                let (l, first, _) = link.expect("guarded");
                 let changes = l.changes_from(first, &mut sent);
                 if !changes.is_empty() {
                     let (lower_query, lower_distance) = lowered_to_proto(&changes);
@@ -456,7 +476,7 @@ async fn ask_chunk(
         if !r.interim {
             break r;
         }
-        let (Some((l, first)), true) = (link, r.batch_id == id) else {
+        let (Some((l, first, found)), true) = (link, r.batch_id == id) else {
             return Err(ClusterError::BadAnswer(format!(
                 "an interim report for batch {} where none was asked",
                 r.batch_id
@@ -464,10 +484,14 @@ async fn ask_chunk(
         };
         let lowered = lowered_from_proto(&r.lower_query, &r.lower_distance, count)
             .map_err(ClusterError::BadAnswer)?;
+        let mut lower = false;
         for (q, d) in lowered {
             reported[q] = reported[q].min(d);
             sent[q] = sent[q].min(d);
-            l.lower(first + q, d);
+            lower |= l.lower(first + q, d);
+        }
+        if lower {
+            found.notify_waiters();
         }
     };
     if r.batch_id != id {

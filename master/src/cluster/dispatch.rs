@@ -174,7 +174,7 @@ impl ClusterSearch {
         expected: f64,
         stretch: f64,
         now: Instant,
-        link: Option<Arc<Link>>,
+        link: Option<conn::BatchLink>,
     ) -> conn::Part {
         let s = &self.slots[i];
         let (n, dims) = (out.batch.len(), out.batch.layout().dims());
@@ -280,6 +280,10 @@ impl ClusterSearch {
         // prunes against the others' finds as they come (ARCHITECTURE §4.7).
         let searchers = participants.len() + usize::from(self.master.space.is_some());
         let link = (out.k == 1 && searchers > 1).then(|| Arc::new(Link::new(n)));
+        let shared = link.as_ref().map(|l| conn::BatchLink {
+            link: l.clone(),
+            found: Arc::new(tokio::sync::Notify::new()),
+        });
         // Send every worker its part; the tasks run while the master searches its own share.
         let now = Instant::now();
         let mut handles = Vec::with_capacity(participants.len());
@@ -288,7 +292,7 @@ impl ClusterSearch {
             let s = &self.slots[i];
             let exp = policy::expected_seconds(s.len(), n, cost, s.rate.max(floor_rate));
             let span = tracing::debug_span!("worker", address = %s.spec.address, batch = out.id);
-            let part = self.part_for(i, out, exp, stretch, now, link.clone());
+            let part = self.part_for(i, out, exp, stretch, now, shared.clone());
             let stream = self.slots[i].stream.take().expect("opened above");
             handles.push(
                 self.rt()
