@@ -372,7 +372,7 @@ pub fn run(a: &QualityArgs) -> Result<()> {
         rows: Vec::new(),
         failures: Vec::new(),
     };
-    println!("| texture | method | time | peak | S_F | S_L | colour | fidelity | copy | repeat | seam | overlap (chance) / nearest pair |");
+    println!("| texture | method | time | peak | S_F | S_L | colour | fidelity | copy | repeat | seam | overlap (chance) / nearest pair / joint offset |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for (k, file) in files.iter().enumerate() {
         let name = file
@@ -399,10 +399,11 @@ pub fn run(a: &QualityArgs) -> Result<()> {
                 Ok((img, scores, set, secs, peak)) => {
                     let overlap = scores.tiles.as_ref().map_or("-".into(), |t| {
                         format!(
-                            "{:.3} ({:.3}) / {}",
+                            "{:.3} ({:.3}) / {} / {:.2}",
                             t.tile_overlap,
                             t.tile_overlap_chance,
-                            t.tile_copy.map_or("-".into(), |c| format!("{c:.2}"))
+                            t.tile_copy.map_or("-".into(), |c| format!("{c:.2}")),
+                            t.joint_offset
                         )
                     });
                     println!(

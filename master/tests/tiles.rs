@@ -193,6 +193,7 @@ fn settings(tiles: usize) -> TileSetSettings {
         pull: 0.0,
         max_overlap: 1.0,
         template_candidates: 1,
+        ring_weight: 0.0,
         candidates: 24,
         refine: 4,
         path: Default::default(),
@@ -1105,6 +1106,46 @@ fn a_somol_grid_hides_its_joints_and_raw_crops_fail_the_same_bound() {
     let bad = tiles::assemble(&raw, &tiles::random_index(4, 8, 8, 3)).unwrap();
     let (ok_bad, rb) = joints_within_bound(&bad, w, h);
     assert!(!ok_bad, "raw crops should fail: joint ratio {rb}");
+}
+
+#[test]
+fn the_template_s_ring_falls_on_typical_texture_and_border_error_alone_draws_the_grid() {
+    // Every tile keeps the template's border ring, so a pale ring is a pale
+    // line at every joint however seamless the joints are. Chosen by border
+    // error alone (ring weight 0), the 128² pink marble's template lies in
+    // pale, veinless marble and its grid's joints stand out; the default
+    // choice weighs the ring's brightness, contrast and detail against the
+    // sample's and its joints fall on typical marble.
+    let sample = texture("pink_marble_color_128.png");
+    let offset = |ring: f64| {
+        let mut s = tiles::SomolConfig {
+            tile_size: Some(64),
+            template_ring: ring,
+            ..Default::default()
+        }
+        .settings(&sample, None)
+        .unwrap();
+        s.tiles = 8;
+        let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
+        let grid = tiles::assemble(&set.tiles, &tiles::random_index(8, 8, 8, 3)).unwrap();
+        let g = compare::Grid {
+            tile_width: 64,
+            tile_height: 64,
+            wrap: true,
+        };
+        let (ok, r) = joints_within_bound(&grid, 64, 64);
+        assert!(ok, "ring weight {ring}: joint ratio {r}");
+        compare::joint_offset(&grid, g)
+    };
+    let (typical, border_only) = (offset(1.0), offset(0.0));
+    assert!(
+        border_only > 0.3,
+        "border error alone: joint offset {border_only}"
+    );
+    assert!(
+        typical < border_only / 2.0,
+        "the ring weighed: joint offset {typical}, border error alone {border_only}"
+    );
 }
 
 /// `E` of each patch set at full resolution.

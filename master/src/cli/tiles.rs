@@ -80,6 +80,13 @@ pub struct MakeArgs {
     /// (1: the paper's single best by border error).
     #[arg(long, default_value_t = SomolConfig::default().template_candidates)]
     pub template_candidates: usize,
+    /// Weight, in the template choice, of how far the template's border
+    /// ring (the lines along every joint, which all tiles of the set keep)
+    /// is from the sample's typical brightness, contrast and detail: each
+    /// placement's path error is scaled by 1 + WEIGHT · that distance. 0:
+    /// border error alone; a pale or flat border then draws the grid.
+    #[arg(long, default_value_t = SomolConfig::default().template_ring)]
+    pub template_ring: f64,
     /// Use this seamless tile as the template instead of searching one (e.g.
     /// the output of `texsyn extend --tileable`).
     #[arg(long)]
@@ -148,6 +155,7 @@ impl TryFrom<&MakeArgs> for MakeConfig {
             pull: a.pull,
             max_overlap: a.max_overlap,
             template_candidates: a.template_candidates,
+            template_ring: a.template_ring,
             candidates: a.candidates,
             path: a.path,
             seed: a.seed,

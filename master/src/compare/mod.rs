@@ -86,6 +86,10 @@ pub struct GridScores {
     /// distinct cells.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tile_copy: Option<f64>,
+    /// How far the lines along the joints are from the image's mean
+    /// luminance, in its standard deviations ([`joint_offset`]): a tile set
+    /// whose tiles share a pale or dark border draws its grid with it.
+    pub joint_offset: f64,
     /// Whether the outer edge counts as a joint (a grid that wraps).
     pub wrap: bool,
 }
@@ -155,6 +159,7 @@ pub fn compare_with(a: &ColorImage, b: &ColorImage, grid: Option<Grid>) -> Resul
                     tile_overlap: overlap,
                     tile_overlap_chance: chance.unwrap_or(0.0),
                     tile_copy: repetition::tile_copy(&cells),
+                    joint_offset: joint_offset(b, g),
                     wrap: g.wrap,
                 }),
             )
@@ -557,6 +562,49 @@ pub fn grid_seam(img: &ColorImage, grid: Grid) -> SeamScore {
         .take_while(|&r| r < img.height)
         .collect();
     steps_score(img, &cols, &rows, grid.wrap)
+}
+
+/// Pixels on each side of a joint that [`joint_offset`] takes as its line.
+pub const JOINT_LINE: usize = 2;
+
+/// How much a grid's joints stand out by brightness: the mean luminance of
+/// the [`JOINT_LINE`] columns and rows on each side of every joint, less the
+/// image's mean, in the image's standard deviations of luminance. A step
+/// across a joint is what [`grid_seam`] sees; this sees the band that every
+/// tile of a set shares along its edges (a template's pale or dark border is
+/// a grid line in every cell, however seamless the joints are). 0 for a
+/// grid whose joints fall on typical texture.
+pub fn joint_offset(img: &ColorImage, grid: Grid) -> f64 {
+    let g = luminance(img);
+    let (w, h) = (g.width, g.height);
+    // Whether coordinate `k` lies within JOINT_LINE of a joint: the
+    // boundary before a multiple of the tile side, the outer edge (0) only
+    // where the grid wraps.
+    let near = |k: usize, tile: usize, len: usize| {
+        let before = k - k % tile;
+        let after = before + tile;
+        let joint = |j: usize| if j == 0 || j >= len { grid.wrap } else { true };
+        (k < before + JOINT_LINE && joint(before)) || (k + JOINT_LINE >= after && joint(after))
+    };
+    let (mut sum, mut sq, mut line, mut lines) = (0.0f64, 0.0f64, 0.0f64, 0usize);
+    for y in 0..h {
+        for x in 0..w {
+            let v = f64::from(g.get(x, y));
+            sum += v;
+            sq += v * v;
+            if near(x, grid.tile_width, w) || near(y, grid.tile_height, h) {
+                line += v;
+                lines += 1;
+            }
+        }
+    }
+    let n = (w * h).max(1) as f64;
+    let mean = sum / n;
+    let deviation = (sq / n - mean * mean).max(0.0).sqrt();
+    if lines == 0 || deviation == 0.0 {
+        return 0.0;
+    }
+    (line / lines as f64 - mean).abs() / deviation
 }
 
 /// The seam score of [`seam_score`]; without `wrap`, the boundary between the

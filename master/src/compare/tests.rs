@@ -422,3 +422,40 @@ fn a_pixel_checker_has_checker_energy_and_a_flat_or_smooth_image_little() {
     let c = super::contrast_ratio(&checker, &half);
     assert!(c.iter().all(|v| (v - 0.5).abs() < 1e-9), "{c:?}");
 }
+
+#[test]
+fn joint_offset_sees_a_shared_pale_border_that_the_seams_do_not() {
+    // Tiles of free noise laid in a wrapping grid: their joints fall on
+    // typical texture. The same tiles with a pale 2-pixel ring along their
+    // edges (the same in every tile, so the joints stay as seamless as the
+    // ring) draw a grid that joint_offset sees.
+    let free: Vec<ColorImage> = (0..8).map(|k| noise(32, 32, 255, 40 + k)).collect();
+    let ringed: Vec<ColorImage> = free
+        .iter()
+        .map(|t| {
+            let mut t = t.clone();
+            for y in 0..32 {
+                for x in 0..32 {
+                    if x < 2 || y < 2 || x >= 30 || y >= 30 {
+                        let p = t.get(x, y);
+                        t.set(x, y, p.map(|c| c / 4 + 190));
+                    }
+                }
+            }
+            t
+        })
+        .collect();
+    let g = Grid {
+        tile_width: 32,
+        tile_height: 32,
+        wrap: true,
+    };
+    let plain = joint_offset(&grid(&free, 6, 6, 3), g);
+    let pale = joint_offset(&grid(&ringed, 6, 6, 3), g);
+    assert!(plain < 0.1, "free tiles: {plain}");
+    assert!(pale > 0.5, "a shared pale ring: {pale}");
+    // The joints of the ringed grid step no more than its interior: the
+    // seam bound passes it.
+    let seam = grid_seam(&grid(&ringed, 6, 6, 3), g);
+    assert!(seam.ratio < 1.15, "{seam:?}");
+}

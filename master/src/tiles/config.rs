@@ -34,6 +34,10 @@ pub const PULL_MAX: f32 = 1000.0;
 /// Least pull of the patch paths towards the tile's edge by default (each
 /// tile doubles it while the set's mean overlap is over budget).
 pub const DEFAULT_PULL: f32 = 4.0;
+/// Default weight of the template ring's atypicality (`--template-ring`).
+pub const DEFAULT_TEMPLATE_RING: f64 = 1.0;
+/// Greatest `--template-ring`.
+pub const TEMPLATE_RING_MAX: f64 = 100.0;
 /// Mean share of equal pixels between two tiles of a set that the pulls
 /// keep to by default.
 pub const DEFAULT_MAX_OVERLAP: f64 = 0.09;
@@ -100,6 +104,10 @@ pub struct SomolConfig {
     /// Template placements stitched and compared (1 = the paper's single
     /// best by border error).
     pub template_candidates: usize,
+    /// Weight of how far the template's border ring is from the sample's
+    /// typical brightness, contrast and detail in the template choice (0 =
+    /// border error alone).
+    pub template_ring: f64,
     pub candidates: usize,
     pub path: PathSearch,
     pub seed: u64,
@@ -115,6 +123,7 @@ impl Default for SomolConfig {
             pull: DEFAULT_PULL,
             max_overlap: DEFAULT_MAX_OVERLAP,
             template_candidates: 3,
+            template_ring: DEFAULT_TEMPLATE_RING,
             candidates: 48,
             path: PathSearch::Oscillating,
             seed: 1,
@@ -138,6 +147,12 @@ impl SomolConfig {
             self.template_candidates,
             &TEMPLATES,
         )?;
+        ensure!(
+            self.template_ring.is_finite()
+                && (0.0..=TEMPLATE_RING_MAX).contains(&self.template_ring),
+            "--template-ring {} is out of range: give 0..={TEMPLATE_RING_MAX}",
+            self.template_ring
+        );
         ensure!(
             self.pull.is_finite() && (0.0..=PULL_MAX).contains(&self.pull),
             "--pull {} is out of range: give 0..={PULL_MAX}",
@@ -214,6 +229,7 @@ impl SomolConfig {
             pull: self.pull,
             max_overlap: self.max_overlap,
             template_candidates: self.template_candidates,
+            ring_weight: self.template_ring,
             candidates: self.candidates,
             refine: 4,
             path: self.path,

@@ -43,6 +43,10 @@ pub struct TileSetSettings {
     /// ([`choose_template`]'s best few by border error; 1 = the paper's).
     #[serde(default = "one")]
     pub template_candidates: usize,
+    /// Weight of the template ring's atypicality in the template choice
+    /// ([`RingStats::atypicality`]; 0 = border error alone, as before).
+    #[serde(default)]
+    pub ring_weight: f64,
     /// Random candidate patch positions tried per tile.
     pub candidates: usize,
     /// Half-width of the local refinement of the best candidate (the paper's
@@ -223,6 +227,66 @@ pub fn wrap_ratio(tile: &ColorImage) -> f64 {
     }
 }
 
+/// Luminance statistics of an image's border ring (the pixels within
+/// `width` of an edge; all of it with `None`): mean, standard deviation and
+/// mean step between neighbours.
+struct RingStats {
+    mean: f64,
+    deviation: f64,
+    step: f64,
+}
+
+impl RingStats {
+    fn of(img: &ColorImage, width: Option<usize>) -> Self {
+        let g = crate::imaging::colour::luminance(img);
+        let (w, h) = (g.width, g.height);
+        let in_ring =
+            |x: usize, y: usize| width.is_none_or(|r| x < r || y < r || x + r >= w || y + r >= h);
+        let (mut n, mut sum, mut sq, mut steps, mut m) = (0.0f64, 0.0, 0.0, 0.0, 0.0f64);
+        for y in 0..h {
+            for x in 0..w {
+                if !in_ring(x, y) {
+                    continue;
+                }
+                let v = f64::from(g.get(x, y));
+                n += 1.0;
+                sum += v;
+                sq += v * v;
+                // Steps to the right and below; a ring's cross its
+                // wrap-around joint too, since it is what meets the
+                // neighbouring tiles (a whole sample does not wrap).
+                for (nx, ny) in [(x + 1, y), (x, y + 1)] {
+                    let (nx, ny) = match width {
+                        Some(_) => (nx % w, ny % h),
+                        None if nx < w && ny < h => (nx, ny),
+                        None => continue,
+                    };
+                    steps += (v - f64::from(g.get(nx, ny))).abs();
+                    m += 1.0;
+                }
+            }
+        }
+        let mean = sum / n.max(1.0);
+        Self {
+            mean,
+            deviation: (sq / n.max(1.0) - mean * mean).max(0.0).sqrt(),
+            step: steps / m.max(1.0),
+        }
+    }
+
+    /// How far this ring is from the `typical` statistics of the sample:
+    /// the offset of its mean in the sample's standard deviations plus the
+    /// relative shortfall or excess of its contrast and detail. Every tile
+    /// of the set keeps the template's ring, so a ring paler, flatter or
+    /// busier than the sample draws the grid that the tiles are laid on.
+    fn atypicality(&self, typical: &Self) -> f64 {
+        let rel = |a: f64, b: f64| (a - b).abs() / b.max(1.0);
+        2.0 * (self.mean - typical.mean).abs() / typical.deviation.max(1.0)
+            + 0.5 * rel(self.deviation, typical.deviation)
+            + 0.5 * rel(self.step, typical.step)
+    }
+}
+
 /// A stitched template candidate: its rank (joints that show, then their
 /// ratio or the path error), the tile, its placement and path costs.
 type Made = ((bool, f64), ColorImage, TemplateChoice, [f64; 2]);
@@ -232,7 +296,9 @@ type Made = ((bool, f64), ColorImage, TemplateChoice, [f64; 2]);
 /// `w_T` and at twice it (room for the path to pass round the texture's
 /// objects) are all stitched; among those whose joints step no more than
 /// their interior ([`wrap_ratio`] ≤ 1) the one whose paths have the least
-/// mean error is kept, or else the one whose joints show least.
+/// mean error, scaled by `1 + ring_weight · atypicality` of its border ring
+/// (the lines along its joints, which every derived tile keeps), is kept,
+/// or else the one whose joints show least.
 fn template_tile(
     sample: &ColorImage,
     given: Option<&ColorImage>,
@@ -278,13 +344,18 @@ fn template_tile(
             k.min(2),
         )?);
     }
+    let typical = RingStats::of(sample, None);
     let made: Vec<Made> = choices
         .par_iter()
         .map(|c| {
             let (t, cuts) = make_template(sample, c, c.overlap, stitch_settings);
             let ratio = wrap_ratio(&t);
+            let ring = RingStats::of(&t, Some(crate::compare::JOINT_LINE));
             let key = if ratio <= 1.0 {
-                (false, mean_template_error(&cuts))
+                (
+                    false,
+                    mean_template_error(&cuts) * (1.0 + s.ring_weight * ring.atypicality(&typical)),
+                )
             } else {
                 (true, ratio)
             };
