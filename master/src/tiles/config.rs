@@ -413,6 +413,16 @@ mod tests {
             .to_string();
             assert!(e.contains("--max-overlap"), "{e}");
         }
+        for bad in [-1.0, TEMPLATE_RING_MAX + 1.0, f64::INFINITY, f64::NAN] {
+            let e = SomolConfig {
+                template_ring: bad,
+                ..Default::default()
+            }
+            .validate()
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("--template-ring"), "{e}");
+        }
         let given = SomolConfig {
             tile_size: Some(64),
             ..Default::default()
