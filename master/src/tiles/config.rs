@@ -403,25 +403,20 @@ mod tests {
         );
         let s = SomolConfig::default().settings(&discs, None).unwrap();
         assert_eq!((s.max_size, s.belt), (100, 20), "objects widen the belt");
-        for bad in [-0.1, 1.5, f64::NAN] {
-            let e = SomolConfig {
-                max_overlap: bad,
-                ..Default::default()
-            }
-            .validate()
-            .unwrap_err()
-            .to_string();
-            assert!(e.contains("--max-overlap"), "{e}");
-        }
-        for bad in [-1.0, TEMPLATE_RING_MAX + 1.0, f64::INFINITY, f64::NAN] {
-            let e = SomolConfig {
+        let overlaps = [-0.1, 1.5, f64::NAN].map(|bad| SomolConfig {
+            max_overlap: bad,
+            ..Default::default()
+        });
+        let rings =
+            [-1.0, TEMPLATE_RING_MAX + 1.0, f64::INFINITY, f64::NAN].map(|bad| SomolConfig {
                 template_ring: bad,
                 ..Default::default()
-            }
-            .validate()
-            .unwrap_err()
-            .to_string();
-            assert!(e.contains("--template-ring"), "{e}");
+            });
+        let refused = (overlaps.iter().map(|c| ("--max-overlap", c)))
+            .chain(rings.iter().map(|c| ("--template-ring", c)));
+        for (flag, config) in refused {
+            let e = config.validate().unwrap_err().to_string();
+            assert!(e.contains(flag), "{e}");
         }
         let given = SomolConfig {
             tile_size: Some(64),
