@@ -573,8 +573,11 @@ pub const JOINT_LINE: usize = 2;
 /// across a joint is what [`grid_seam`] sees; this sees the band that every
 /// tile of a set shares along its edges (a template's pale or dark border is
 /// a grid line in every cell, however seamless the joints are). 0 for a
-/// grid whose joints fall on typical texture.
+/// grid whose joints fall on typical texture, and for an empty tile size.
 pub fn joint_offset(img: &ColorImage, grid: Grid) -> f64 {
+    if grid.tile_width == 0 || grid.tile_height == 0 {
+        return 0.0;
+    }
     let g = luminance(img);
     let (w, h) = (g.width, g.height);
     // Whether coordinate `k` lies within JOINT_LINE of a joint: the
