@@ -116,6 +116,8 @@ struct Rounds {
     rtts: Vec<f64>,
     /// The workers' own search seconds per batch in the cluster's best round.
     worker_per_batch: [f64; 2],
+    /// CPU by thread role over every round's measured cluster batches.
+    cpu: ThreadCpu,
 }
 
 /// Each worker's search seconds so far, from the cluster's stats.
@@ -133,6 +135,7 @@ fn measure(
     local: &mut LocalSearch,
     cluster: &mut ClusterSearch,
     batches: &[QueryBatch],
+    worker_pids: &[u32],
 ) -> Result<Rounds> {
     let queries = (a.batches * a.batch) as f64;
     let mut r = Rounds::default();
@@ -153,9 +156,11 @@ fn measure(
         let mut round_rtts = Vec::new();
         let mut cluster_seconds = 0.0;
         let mut before = worker_seconds(cluster);
+        let mut cpu_before = ThreadCpu::now(worker_pids);
         for (i, q) in batches.iter().enumerate() {
             if i == WARM {
                 before = worker_seconds(cluster);
+                cpu_before = ThreadCpu::now(worker_pids);
             }
             let t = Instant::now();
             let h = cluster.search(q)?;
@@ -170,6 +175,9 @@ fn measure(
             }
         }
         let after = worker_seconds(cluster);
+        if let (Some(b), Some(e)) = (cpu_before, ThreadCpu::now(worker_pids)) {
+            r.cpu.add(&e.since(&b));
+        }
         let (lq, cq) = (queries / local_seconds, queries / cluster_seconds);
         r.ratios.push(cq / lq);
         if cq > r.cluster_qps {
@@ -272,7 +280,8 @@ pub fn run(a: &ClusterArgs) -> Result<()> {
     cluster.load_level(&data)?;
     let load_seconds = t.elapsed().as_secs_f64();
 
-    let mut rounds = measure(a, &pool, &mut local, &mut cluster, &batches)?;
+    let pids: Vec<u32> = workers.workers.iter().map(|w| w.pid()).collect();
+    let mut rounds = measure(a, &pool, &mut local, &mut cluster, &batches, &pids)?;
     let work = local.level_prune().zip(cluster.level_prune());
     local.end_level();
     drop(local);
@@ -284,10 +293,120 @@ pub fn run(a: &ClusterArgs) -> Result<()> {
     if let Some((l, c)) = work {
         print_work(a, &rounds, &l, &c);
     }
+    print_traffic(&stats, &rounds);
     print_memory(&stats, &workers, stride as u64);
     drop(cluster);
     drop(workers);
     Ok(())
+}
+
+/// CPU time of the threads at work in the cluster rounds, by role, from
+/// Linux's per-thread `schedstat` (nanoseconds on the CPU): the workers'
+/// search threads (`texsyn-search-*`), the workers' other threads (their
+/// async runtime: the stream, the link reports), and this process's cluster
+/// runtime (`texsyn-cluster`: sending, merging, forwarding). Where the
+/// search threads get less than the cores, the rest is what slows them.
+#[derive(Debug, Clone, Copy, Default)]
+struct ThreadCpu {
+    search: f64,
+    worker_other: f64,
+    master: f64,
+    wall: f64,
+}
+
+impl ThreadCpu {
+    /// The counters now, or None where `/proc` has no `schedstat`.
+    fn now(worker_pids: &[u32]) -> Option<Self> {
+        let mut c = Self {
+            wall: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .ok()?
+                .as_secs_f64(),
+            ..Self::default()
+        };
+        for &pid in worker_pids {
+            for (name, secs) in thread_times(pid)? {
+                if name.starts_with("texsyn-search") {
+                    c.search += secs;
+                } else {
+                    c.worker_other += secs;
+                }
+            }
+        }
+        c.master = thread_times(std::process::id())?
+            .into_iter()
+            .filter(|(name, _)| name.starts_with("texsyn-cluster"))
+            .map(|(_, secs)| secs)
+            .sum();
+        Some(c)
+    }
+
+    fn since(&self, b: &Self) -> Self {
+        Self {
+            search: self.search - b.search,
+            worker_other: self.worker_other - b.worker_other,
+            master: self.master - b.master,
+            wall: self.wall - b.wall,
+        }
+    }
+
+    fn add(&mut self, o: &Self) {
+        self.search += o.search;
+        self.worker_other += o.worker_other;
+        self.master += o.master;
+        self.wall += o.wall;
+    }
+}
+
+/// (name, seconds on the CPU) of every thread of `pid`.
+fn thread_times(pid: u32) -> Option<Vec<(String, f64)>> {
+    let dir = std::fs::read_dir(format!("/proc/{pid}/task")).ok()?;
+    let mut out = Vec::new();
+    for t in dir.flatten() {
+        let p = t.path();
+        let (Ok(name), Ok(stat)) = (
+            std::fs::read_to_string(p.join("comm")),
+            std::fs::read_to_string(p.join("schedstat")),
+        ) else {
+            continue; // the thread ended between the listing and the read
+        };
+        let ns: f64 = stat.split_whitespace().next()?.parse().ok()?;
+        out.push((name.trim().to_string(), ns / 1e9));
+    }
+    Some(out)
+}
+
+/// The link's messages per batch (ARCHITECTURE §4.7) and where the cluster
+/// rounds' CPU went.
+fn print_traffic(stats: &serde_json::Value, r: &Rounds) {
+    if let Some(w) = stats["workers"].as_array() {
+        let per_batch = |x: &serde_json::Value, k: &str| {
+            x[k].as_f64().unwrap_or(0.0) / x["batches"].as_f64().unwrap_or(0.0).max(1.0)
+        };
+        println!(
+            "link messages per batch: {}",
+            w.iter()
+                .map(|x| format!(
+                    "{} {:.1} reports in, {:.1} updates out",
+                    x["address"].as_str().unwrap_or("?"),
+                    per_batch(x, "link_reports"),
+                    per_batch(x, "link_updates")
+                ))
+                .collect::<Vec<_>>()
+                .join("; ")
+        );
+    }
+    let c = &r.cpu;
+    if c.wall > 0.0 {
+        let share = |s: f64| 100.0 * s / (2.0 * c.wall);
+        println!(
+            "CPU in the measured cluster batches (share of 2 cores over {:.2} s): workers' search threads {:.1}%, workers' other threads {:.1}%, master's cluster runtime {:.1}%",
+            c.wall,
+            share(c.search),
+            share(c.worker_other),
+            share(c.master)
+        );
+    }
 }
 
 /// The workers and their calibrated throughput.
@@ -428,5 +547,78 @@ fn print_memory(stats: &serde_json::Value, workers: &LocalWorkers, stride: u64) 
             ),
             None => println!("worker {addr}: peak memory not readable (no /proc)"),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// This thread's own CPU clock, in seconds.
+    fn own_cpu() -> f64 {
+        let mut t = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: `t` is a valid timespec for the call to fill in.
+        let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
+        assert_eq!(rc, 0);
+        t.tv_sec as f64 + t.tv_nsec as f64 / 1e9
+    }
+
+    /// What `thread_times` reads of a named thread agrees with the thread's
+    /// own CPU clock, busy or asleep (however loaded the machine is).
+    #[test]
+    fn thread_times_agree_with_the_thread_s_own_clock() {
+        let pid = std::process::id();
+        let run = |name: &str, busy: bool| -> (f64, f64) {
+            let (tx, rx) = std::sync::mpsc::channel();
+            let (go, wait) = std::sync::mpsc::channel::<()>();
+            let h = std::thread::Builder::new()
+                .name(name.into())
+                .spawn(move || {
+                    tx.send(0.0).unwrap();
+                    let _ = wait.recv();
+                    let start = own_cpu();
+                    if busy {
+                        while own_cpu() - start < 0.15 {
+                            std::hint::black_box(start);
+                        }
+                    } else {
+                        std::thread::sleep(std::time::Duration::from_millis(100));
+                    }
+                    tx.send(own_cpu() - start).unwrap();
+                    let _ = wait.recv();
+                })
+                .unwrap();
+            rx.recv().unwrap();
+            let read = || -> f64 {
+                thread_times(pid)
+                    .expect("/proc/PID/task/*/schedstat")
+                    .into_iter()
+                    .filter(|(t, _)| t == name)
+                    .map(|(_, s)| s)
+                    .sum()
+            };
+            let before = read();
+            go.send(()).unwrap();
+            let own = rx.recv().unwrap();
+            let read_delta = read() - before;
+            go.send(()).unwrap();
+            h.join().unwrap();
+            (read_delta, own)
+        };
+        for (name, busy) in [("texsyn-search-9", true), ("texsyn-asleep", false)] {
+            let (read, own) = run(name, busy);
+            assert!(
+                (read - own).abs() < 0.02,
+                "{name}: schedstat {read} s, own clock {own} s"
+            );
+            assert_eq!(read > 0.1, busy, "{name}: {read} s");
+        }
+        // This process standing in for a worker: its main and test threads
+        // are the "other" threads.
+        let c = ThreadCpu::now(&[pid]).unwrap();
+        assert!(c.worker_other > 0.0, "{c:?}");
     }
 }

@@ -466,10 +466,15 @@ fn a_worker_reporting_distances_it_cannot_answer_is_dropped() {
     // distance 0 for every query, which starves worker a's pruning, and then
     // answers truthfully. Its answer is worse than what it reported, so the
     // master refuses it, drops it and asks the batch again of a alone.
-    let (_, _, drop) = run_beside_a_faulty_worker((41, 42), "--fault-low-reports");
+    let (out, baddr, drop) = run_beside_a_faulty_worker((41, 42), "--fault-low-reports");
     let reason = drop["reason"].as_str().unwrap();
     assert!(reason.contains("reported finding distance 0"), "{reason}");
     assert_eq!(drop["level"], LEVELS - 1, "caught at its first batch");
+    // The report that gave it away is counted in its link traffic, although
+    // its answer was refused.
+    let b = worker_stats(cluster_stats(&out), &baddr);
+    assert!(b["link_reports"].as_u64().unwrap() >= 1, "{b:#}");
+    assert!(b["link_updates"].as_u64().is_some(), "{b:#}");
 }
 
 #[test]

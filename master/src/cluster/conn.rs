@@ -335,6 +335,14 @@ pub(crate) struct BatchLink {
     pub found: Arc<Notify>,
 }
 
+/// The messages of a linked batch's part (ARCHITECTURE §4.7): the interim
+/// reports its worker sent and the updates the master sent it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub(crate) struct LinkTraffic {
+    pub reports: u64,
+    pub updates: u64,
+}
+
 /// What came back for one part.
 pub(crate) struct PartAnswer {
     /// The stream, for the next batch (None when it failed).
@@ -346,6 +354,8 @@ pub(crate) struct PartAnswer {
     pub search_seconds: f64,
     /// Pruning figures the worker reported.
     pub prune: PruneStats,
+    /// Link messages while it ran (linked batches).
+    pub traffic: LinkTraffic,
 }
 
 /// Sends the part's chunks one after the other on `stream` and reads each
@@ -355,6 +365,7 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
     let mut hits = Vec::new();
     let mut search_seconds = 0.0;
     let mut prune = PruneStats::default();
+    let mut traffic = LinkTraffic::default();
     let mut failure = None;
     let mut first = 0;
     for chunk in part.chunks {
@@ -367,6 +378,7 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
             started,
             &part.range,
             link,
+            &mut traffic,
         )
         .await
         {
@@ -389,6 +401,7 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
             wall,
             search_seconds,
             prune,
+            traffic,
         },
         None => PartAnswer {
             stream: Some(stream),
@@ -396,6 +409,7 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
             wall,
             search_seconds,
             prune,
+            traffic,
         },
     }
 }
@@ -409,6 +423,7 @@ pub(crate) async fn run_part(mut stream: SearchStream, part: Part) -> PartAnswer
 /// the master's own share, which lowers the link without waking). A
 /// worker whose answer is worse than a distance it reported finding is
 /// refused: its reports could have starved the other ranges' searches.
+/// `traffic` counts the link messages either way.
 async fn ask_chunk(
     stream: &mut SearchStream,
     mut chunk: pb::SearchBatch,
@@ -416,6 +431,7 @@ async fn ask_chunk(
     started: Instant,
     range: &Range<u64>,
     link: Option<(&Link, usize, &Notify)>,
+    traffic: &mut LinkTraffic,
 ) -> ClusterResult<(Vec<Hit>, f64, PruneStats)> {
     let missed = || ClusterError::Deadline(deadline.saturating_duration_since(started).as_millis());
     let at = tokio::time::Instant::from_std(deadline);
@@ -464,6 +480,7 @@ async fn ask_chunk(
                         lower_distance,
                         ..Default::default()
                     };
+                    traffic.updates += 1;
                     match tokio::time::timeout_at(at, stream.tx.send(update)).await {
                         Ok(Ok(())) => {}
                         Ok(Err(_)) => return Err(ClusterError::StreamClosed),
@@ -482,6 +499,7 @@ async fn ask_chunk(
                 r.batch_id
             )));
         };
+        traffic.reports += 1;
         let lowered = lowered_from_proto(&r.lower_query, &r.lower_distance, count)
             .map_err(ClusterError::BadAnswer)?;
         let mut lower = false;

@@ -350,6 +350,9 @@ impl ClusterSearch {
     ) -> std::result::Result<Vec<Hit>, ClusterError> {
         let s = &mut self.slots[i];
         s.stream = a.stream;
+        // The messages were exchanged whether or not the answer holds.
+        s.stats.link_reports += a.traffic.reports;
+        s.stats.link_updates += a.traffic.updates;
         let hits = a.result?;
         self.level_prune.add(&a.prune);
         s.level_pairs += s.len() as f64 * n as f64 * cost;

@@ -62,6 +62,10 @@ pub(super) struct PartStats {
     pub search_seconds: f64,
     /// Wall time from sending a batch to its answer.
     pub round_trip_seconds: f64,
+    /// Interim reports the worker sent and updates the master forwarded to
+    /// it while linked batches ran (ARCHITECTURE §4.7).
+    pub link_reports: u64,
+    pub link_updates: u64,
 }
 
 impl ClusterSearch {
@@ -131,6 +135,8 @@ impl ClusterSearch {
                     "batches": s.stats.batches,
                     "seconds": s.stats.search_seconds,
                     "round_trip_seconds": s.stats.round_trip_seconds,
+                    "link_reports": s.stats.link_reports,
+                    "link_updates": s.stats.link_updates,
                     "calibrated_pairs_per_second": s.rate,
                     "threads": s.info.as_ref().map(|i| i.threads),
                     "cores": s.info.as_ref().map(|i| i.cores),
