@@ -118,6 +118,8 @@ struct Rounds {
     worker_per_batch: [f64; 2],
     /// CPU by thread role over every round's measured cluster batches.
     cpu: ThreadCpu,
+    /// Wall time of those batches, every round.
+    cluster_wall: f64,
 }
 
 /// Each worker's search seconds so far, from the cluster's stats.
@@ -177,6 +179,7 @@ fn measure(
         let after = worker_seconds(cluster);
         if let (Some(b), Some(e)) = (cpu_before, ThreadCpu::now(worker_pids)) {
             r.cpu.add(&e.since(&b));
+            r.cluster_wall += cluster_seconds;
         }
         let (lq, cq) = (queries / local_seconds, queries / cluster_seconds);
         r.ratios.push(cq / lq);
@@ -311,19 +314,12 @@ struct ThreadCpu {
     search: f64,
     worker_other: f64,
     master: f64,
-    wall: f64,
 }
 
 impl ThreadCpu {
     /// The counters now, or None where `/proc` has no `schedstat`.
     fn now(worker_pids: &[u32]) -> Option<Self> {
-        let mut c = Self {
-            wall: std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .ok()?
-                .as_secs_f64(),
-            ..Self::default()
-        };
+        let mut c = Self::default();
         for &pid in worker_pids {
             for (name, secs) in thread_times(pid)? {
                 if name.starts_with("texsyn-search") {
@@ -346,7 +342,6 @@ impl ThreadCpu {
             search: self.search - b.search,
             worker_other: self.worker_other - b.worker_other,
             master: self.master - b.master,
-            wall: self.wall - b.wall,
         }
     }
 
@@ -354,7 +349,6 @@ impl ThreadCpu {
         self.search += o.search;
         self.worker_other += o.worker_other;
         self.master += o.master;
-        self.wall += o.wall;
     }
 }
 
@@ -396,12 +390,12 @@ fn print_traffic(stats: &serde_json::Value, r: &Rounds) {
                 .join("; ")
         );
     }
-    let c = &r.cpu;
-    if c.wall > 0.0 {
-        let share = |s: f64| 100.0 * s / (2.0 * c.wall);
+    let (c, wall) = (&r.cpu, r.cluster_wall);
+    if wall > 0.0 {
+        let share = |s: f64| 100.0 * s / (2.0 * wall);
         println!(
             "CPU in the measured cluster batches (share of 2 cores over {:.2} s): workers' search threads {:.1}%, workers' other threads {:.1}%, master's cluster runtime {:.1}%",
-            c.wall,
+            wall,
             share(c.search),
             share(c.worker_other),
             share(c.master)
