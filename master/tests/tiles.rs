@@ -1271,3 +1271,152 @@ fn omega_tiles_are_distinct_and_agree_with_their_neighbours_along_whole_edges() 
     touched[5].set(0, 9, [p[0] ^ 0x40, p[1], p[2]]);
     assert_eq!(edge_disagreements(&sample, &set, &found.genes, &touched), 1);
 }
+
+/// `n` dark discs of radius `r` on a light ground, at least `gap` apart,
+/// each with its own grey so that a disc joined from two halves differs.
+fn disc_sample(side: usize, r: usize, n: usize, gap: usize, seed: u64) -> ColorImage {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut centres: Vec<(i64, i64)> = Vec::new();
+    let (s, min) = (side as i64, (2 * r + gap) as i64);
+    for _ in 0..n * 200 {
+        if centres.len() == n {
+            break;
+        }
+        let c = (rng.random_range(0..s), rng.random_range(0..s));
+        // Distances wrap, so the sample tiles and no disc is cut at its edge.
+        let far = |a: i64, b: i64| {
+            let d = (a - b).rem_euclid(s);
+            d.min(s - d)
+        };
+        if centres
+            .iter()
+            .all(|&(x, y)| far(x, c.0).pow(2) + far(y, c.1).pow(2) >= min * min)
+        {
+            centres.push(c);
+        }
+    }
+    // A grain on the ground, so that its steps are not all zero.
+    let mut img = ColorImage::new(side, side);
+    for y in 0..side {
+        for x in 0..side {
+            let g = rng.random_range(0..12u8);
+            img.set(x, y, [220 + g, 210 + g, 195 + g]);
+        }
+    }
+    for (k, &(cx, cy)) in centres.iter().enumerate() {
+        let tone = 40 + (k * 37 % 80) as u8;
+        let r = r as i64;
+        for dy in -r..=r {
+            for dx in -r..=r {
+                if dx * dx + dy * dy <= r * r {
+                    let (x, y) = ((cx + dx).rem_euclid(s), (cy + dy).rem_euclid(s));
+                    let g = rng.random_range(0..4u8);
+                    img.set(x as usize, y as usize, [tone + g, tone + g, tone + 10]);
+                }
+            }
+        }
+    }
+    img
+}
+
+/// The share of a tile's dark pixels (its wrap-around kept) that lie in
+/// pieces of other than one whole disc of radius `r`: discs sliced by a
+/// stitch, or halves of two discs joined.
+fn sliced_share(tile: &ColorImage, r: usize) -> f64 {
+    let (w, h) = (tile.width, tile.height);
+    let dark = |x: usize, y: usize| tile.get(x, y)[0] < 180;
+    let whole = std::f64::consts::PI * (r * r) as f64;
+    let mut seen = vec![false; w * h];
+    let (mut sliced, mut total) = (0usize, 0usize);
+    for start in 0..w * h {
+        if seen[start] || !dark(start % w, start / w) {
+            continue;
+        }
+        seen[start] = true;
+        let (mut stack, mut piece, mut tones) = (vec![start], 0usize, Vec::new());
+        while let Some(i) = stack.pop() {
+            let (x, y) = (i % w, i / w);
+            piece += 1;
+            tones.push(tile.get(x, y)[0]);
+            for (nx, ny) in [
+                ((x + 1) % w, y),
+                ((x + w - 1) % w, y),
+                (x, (y + 1) % h),
+                (x, (y + h - 1) % h),
+            ] {
+                let j = ny * w + nx;
+                if !seen[j] && dark(nx, ny) {
+                    seen[j] = true;
+                    stack.push(j);
+                }
+            }
+        }
+        let one_tone = tones.iter().all(|&t| t.abs_diff(tones[0]) <= 6);
+        let size = piece as f64 / whole;
+        total += piece;
+        if !one_tone || !(0.85..=1.15).contains(&size) {
+            sliced += piece;
+        }
+    }
+    sliced as f64 / total.max(1) as f64
+}
+
+#[test]
+fn the_template_s_stitches_pass_round_objects_wider_than_the_paper_s_band() {
+    // Discs 21 px across at 128-px tiles: the paper's 12-px template overlap
+    // and its doubling leave the wrap stitches no way round a disc, so the
+    // template that every tile repeats joins halves of different discs.
+    // The belt is widened to the discs' scale, and the template choice
+    // stitches a band twice the belt too: its stitches pass between them.
+    let sample = disc_sample(384, 10, 150, 4, 7);
+    let template = |belt: Option<usize>| {
+        let mut s = tiles::SomolConfig {
+            tile_size: Some(128),
+            belt,
+            ..Default::default()
+        }
+        .settings(&sample, None)
+        .unwrap();
+        s.tiles = 1;
+        let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
+        (
+            set.template.overlap,
+            s.belt,
+            sliced_share(&set.tiles[0], 10),
+        )
+    };
+    let (wide, belt, default) = template(None);
+    assert!(belt > 24, "belt {belt}: not widened to the discs");
+    assert_eq!(wide, 2 * belt, "the template's band");
+    // A belt no wider than the doubled band: only the paper's two bands.
+    let (paper, _, narrow) = template(Some(24));
+    assert!(
+        paper <= 24,
+        "with --belt 24 the bands are 12 and 24: {paper}"
+    );
+    assert!(
+        default <= narrow,
+        "sliced share of the template's discs: default {default}, the paper's bands {narrow}"
+    );
+    // One placement, stitched at each band: the doubled band still slices
+    // discs, twice the belt does not.
+    let at = |overlap: usize| {
+        let mut s = tiles::SomolConfig {
+            tile_size: Some(128),
+            overlap: Some(overlap),
+            template_candidates: 1,
+            ..Default::default()
+        }
+        .settings(&sample, None)
+        .unwrap();
+        s.tiles = 1;
+        let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
+        sliced_share(&set.tiles[0], 10)
+    };
+    let (doubled, objects) = (at(24), at(2 * belt));
+    assert!(
+        doubled > 0.05 && objects < doubled / 4.0,
+        "sliced share at one placement: band 24 {doubled}, band {} {objects}",
+        2 * belt
+    );
+}

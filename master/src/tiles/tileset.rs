@@ -293,8 +293,8 @@ type Made = ((bool, f64), ColorImage, TemplateChoice, [f64; 2]);
 
 /// The template tile: `given` as it is, or chosen and stitched (§3.1). With
 /// `template_candidates` above 1, the best few placements at the overlap
-/// `w_T` and at twice it (room for the path to pass round the texture's
-/// objects) are all stitched; among those whose joints step no more than
+/// `w_T`, at twice it and, where the belt is wider still, at twice the belt
+/// (room for the path to pass round the texture's objects) are all stitched; among those whose joints step no more than
 /// their interior ([`wrap_ratio`] ≤ 1) the one whose paths have the least
 /// mean error, scaled by `1 + ring_weight · atypicality` of its border ring
 /// (the lines along its joints, which every derived tile keeps), is kept,
@@ -327,10 +327,19 @@ fn template_tile(
         let (t, cuts) = make_template(sample, &choice, s.overlap, stitch_settings);
         return Ok((t, choice, [cuts[0].cost, cuts[1].cost]));
     }
+    let fits = |w: usize| 2 * w < s.min_size && s.min_size + w <= sample.width.min(sample.height);
     let mut overlaps = vec![s.overlap];
     let wide = 2 * s.overlap;
-    if 2 * wide < s.min_size && s.min_size + wide <= sample.width.min(sample.height) {
+    if fits(wide) {
         overlaps.push(wide);
+    }
+    // A belt wider than the wide band was widened to hold the sample's
+    // objects (`config::default_belt`): the template's joints, which every
+    // tile repeats, get a band twice the belt too, or they slice those
+    // objects where the patches' paths go round them.
+    let objects = 2 * s.belt;
+    if s.belt > wide && fits(objects) {
+        overlaps.push(objects);
     }
     let mut choices = Vec::new();
     for &w in &overlaps {
