@@ -15,6 +15,9 @@
 //!   own RMS (their shape: sparse edges or Gaussian-like noise), as in S_L;
 //! - 17 quantiles of the grey values (the pattern's histogram).
 
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
+
 use serde::{Deserialize, Serialize};
 
 use crate::compare::{frequency as freq, laplacian_bands_of, weighted_spectrum};
@@ -120,23 +123,47 @@ impl Structure {
     }
 }
 
+/// Per frequency its bin ([`spectrum_bins`]).
+type Bins = Arc<Vec<Option<u16>>>;
+
+/// Per frequency of a `w`×`h` spectrum its radius × orientation bin, or
+/// `None` at zero and beyond the Nyquist radius; made once per size (every
+/// descriptor of a catalogue and of a search has the same few sizes).
+fn spectrum_bins(w: usize, h: usize) -> Bins {
+    static BINS: OnceLock<Mutex<HashMap<(usize, usize), Bins>>> = OnceLock::new();
+    let cache = BINS.get_or_init(Default::default);
+    if let Some(b) = cache.lock().expect("bins cache").get(&(w, h)) {
+        return b.clone();
+    }
+    let bins: Vec<Option<u16>> = (0..w * h)
+        .map(|i| {
+            let (fx, fy) = (freq(i % w, w), freq(i / w, h));
+            let r = fx.hypot(fy);
+            if r == 0.0 || r >= 0.5 {
+                return None;
+            }
+            let rb = ((r / 0.5) * RADIAL as f64) as usize;
+            let a = fy.atan2(fx).rem_euclid(std::f64::consts::PI);
+            let ab = ((a / std::f64::consts::PI) * ANGULAR as f64) as usize % ANGULAR;
+            Some((rb.min(RADIAL - 1) * ANGULAR + ab) as u16)
+        })
+        .collect();
+    let bins = Arc::new(bins);
+    cache
+        .lock()
+        .expect("bins cache")
+        .insert((w, h), bins.clone());
+    bins
+}
+
 /// The S_F spectrum of `z` summed (as energy) into radius × orientation
 /// bins up to the Nyquist radius, then unit length.
 fn binned_spectrum(z: &[f64], w: usize, h: usize) -> Vec<f32> {
     let s = weighted_spectrum(z, w, h);
     let mut bins = vec![0.0f64; RADIAL * ANGULAR];
-    for y in 0..h {
-        for x in 0..w {
-            let (fx, fy) = (freq(x, w), freq(y, h));
-            let r = fx.hypot(fy);
-            if r == 0.0 || r >= 0.5 {
-                continue;
-            }
-            let rb = ((r / 0.5) * RADIAL as f64) as usize;
-            let a = fy.atan2(fx).rem_euclid(std::f64::consts::PI);
-            let ab = ((a / std::f64::consts::PI) * ANGULAR as f64) as usize % ANGULAR;
-            let m = s[y * w + x];
-            bins[rb.min(RADIAL - 1) * ANGULAR + ab] += m * m;
+    for (b, m) in spectrum_bins(w, h).iter().zip(&s) {
+        if let Some(b) = b {
+            bins[usize::from(*b)] += m * m;
         }
     }
     let mut out: Vec<f64> = bins.iter().map(|e| e.sqrt()).collect();
