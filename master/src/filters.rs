@@ -11,6 +11,12 @@ use rustfft::{Fft, FftNum};
 
 use crate::imaging::ColorImage;
 
+/// `(k − r) mod n` without going below zero: the first index of the window
+/// at `k` (shared by [`window_sums`] and [`box_blur_lines`]).
+fn wrap_back(k: usize, n: usize, r: usize) -> usize {
+    (k + n * (r / n + 1) - r) % n
+}
+
 /// The sums of every window of radius `r` along a wrapped line of `n`
 /// values: `emit(k, Σ value(k − r ..= k + r))` for each `k`. The first sum
 /// adds the `2r + 1` values in order; each next one adds the entering value
@@ -26,8 +32,7 @@ pub fn window_sums<S>(
     if n == 0 {
         return;
     }
-    // (k − r) mod n without going below zero.
-    let back = |k: usize| (k + n * (r / n + 1) - r) % n;
+    let back = |k: usize| wrap_back(k, n, r);
     let mut sum: S = (0..=2 * r).map(|j| value(back(j))).sum();
     for k in 0..n {
         emit(k, sum);
@@ -71,7 +76,7 @@ pub fn box_blur_lines(v: &mut [f64], n: usize, lines: usize, r: usize, step: usi
     // The wrapped indices of `window_sums`, taken once for all lines: the
     // first window's values in order, then per k the entering and the
     // leaving value.
-    let back = |k: usize| (k + n * (r / n + 1) - r) % n;
+    let back = |k: usize| wrap_back(k, n, r);
     let first: Vec<usize> = (0..=2 * r).map(back).collect();
     let enter: Vec<usize> = (0..n).map(|k| (k + r + 1) % n).collect();
     let leave: Vec<usize> = (0..n).map(back).collect();
