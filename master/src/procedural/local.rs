@@ -11,7 +11,7 @@ use argmin::solver::neldermead::NelderMead;
 use rayon::prelude::*;
 
 use super::objective::{evaluate, Eval, Problem, Target};
-use super::shaders::{Kind, Shader};
+use super::shaders::{Kind, Layout, Shader};
 
 /// Nelder–Mead (argmin) on `problem` from the unit-box point `x0`: the
 /// first simplex steps `step` along each axis (inwards at the upper edge);
@@ -93,6 +93,13 @@ pub(super) struct Effort {
     /// (at least 1) from where it is: it was read from the periods, and a
     /// harmonic may score better on the objective.
     pub count_window: Option<f64>,
+    /// When set, a scattered shader's count is tried at every value of its
+    /// range, each refined by a simplex run of this many iterations before
+    /// the values are compared: no period reads its features' spacing, and
+    /// the other parameters (dots or walls, their width) settle differently
+    /// per count, so a count compared with them kept looks best near where
+    /// it already is.
+    pub scatter_refine: Option<u64>,
 }
 
 impl Effort {
@@ -102,6 +109,7 @@ impl Effort {
         integer_rounds: 3,
         alternatives: 2,
         count_window: None,
+        scatter_refine: None,
     };
     /// Several shaders searched: counts and angles come seeded from the
     /// target's periods, so the sweeps are coarse and one new whole number
@@ -111,6 +119,7 @@ impl Effort {
         integer_rounds: 1,
         alternatives: 1,
         count_window: Some(0.15),
+        scatter_refine: Some(20),
     };
 }
 
@@ -216,28 +225,50 @@ pub(super) fn refine_with_integers(
         let mut improved = false;
         for &i in &ints {
             let spec = &shader.params[i];
-            let mut tried: Vec<(f64, f64)> = Vec::new();
+            let mut tried: Vec<(f64, f64, Vec<f64>)> = Vec::new();
             let mut v = spec.min;
             let here = best.params[i];
             let near = |v: f64| match effort.count_window {
                 Some(w) if count == Some(i) => (v - here).abs() <= (w * here).max(1.0),
                 _ => true,
             };
-            while v <= spec.max {
-                if v != here && near(v) {
-                    let mut p = best.params.clone();
-                    p[i] = v;
-                    evals.fetch_add(1, Ordering::Relaxed);
-                    tried.push((evaluate(shader, &p, target).objective, v));
+            let scattered = match (shader.layout, effort.scatter_refine) {
+                (Layout::Scatter { count }, Some(r)) if count == i => Some(r),
+                _ => None,
+            };
+            if let Some(r) = scattered {
+                // Every count, each with its other parameters refined.
+                let values: Vec<f64> = (spec.min as i64..=spec.max as i64)
+                    .map(|v| v as f64)
+                    .filter(|&v| v != here)
+                    .collect();
+                let refined: Vec<(Eval, u64)> = values
+                    .par_iter()
+                    .map(|&v| {
+                        let mut p = best.params.clone();
+                        p[i] = v;
+                        refine(shader, &p, r, target, evals)
+                    })
+                    .collect::<Result<_>>()?;
+                for (e, n) in refined {
+                    iters += n;
+                    tried.push((e.objective, e.params[i], e.params));
                 }
-                v += 1.0;
+            } else {
+                while v <= spec.max {
+                    if v != here && near(v) {
+                        let mut p = best.params.clone();
+                        p[i] = v;
+                        evals.fetch_add(1, Ordering::Relaxed);
+                        tried.push((evaluate(shader, &p, target).objective, v, p));
+                    }
+                    v += 1.0;
+                }
             }
             tried.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
-            for &(_, v) in tried.iter().take(effort.alternatives) {
-                let mut p = best.params.clone();
-                p[i] = v;
+            for (_, _, p) in tried.iter().take(effort.alternatives) {
                 let (e, n) =
-                    sweep_and_refine(shader, &p, max_iters.div_ceil(2), effort, target, evals)?;
+                    sweep_and_refine(shader, p, max_iters.div_ceil(2), effort, target, evals)?;
                 iters += n;
                 if e.objective < best.objective - 1e-9 {
                     best = e;
@@ -250,4 +281,38 @@ pub(super) fn refine_with_integers(
         }
     }
     Ok((best, iters))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::procedural::pattern::Pattern;
+    use crate::procedural::shaders::by_name;
+
+    /// A scattered shader's count is searched over its whole range, each
+    /// value with its other parameters refined: from a start at half the
+    /// target's count (dots where the target has walls), the photo effort
+    /// finds the target's count. Compared with the other parameters kept,
+    /// or only near the start, it stays within a step of 6.
+    #[test]
+    fn a_scattered_count_is_found_across_its_whole_range() {
+        let cells = by_name("cells").unwrap();
+        let truth = Pattern {
+            shader: cells,
+            params: vec![12.0, 0.9, 0.85, 0.12],
+            colours: [[40.0, 30.0, 20.0], [200.0, 170.0, 120.0]],
+        };
+        let target = Target::new(&truth.render(64, 64), 64).unwrap();
+        let evals = AtomicU64::new(0);
+        let (found, _) = refine_with_integers(
+            cells,
+            &[6.0, 0.5, 0.2, 0.25],
+            40,
+            Effort::LIGHT,
+            &target,
+            &evals,
+        )
+        .unwrap();
+        assert_eq!(found.params[0], 12.0, "{:?}", found.params);
+    }
 }
