@@ -225,46 +225,44 @@ pub(super) fn refine_with_integers(
         let mut improved = false;
         for &i in &ints {
             let spec = &shader.params[i];
-            let mut tried: Vec<(f64, f64, Vec<f64>)> = Vec::new();
-            let mut v = spec.min;
             let here = best.params[i];
-            let near = |v: f64| match effort.count_window {
-                Some(w) if count == Some(i) => (v - here).abs() <= (w * here).max(1.0),
-                _ => true,
-            };
+            // A scattered shader's count: every value, each with its other
+            // parameters refined. Any other: the values near enough, with
+            // the other parameters kept.
             let scattered = match (shader.layout, effort.scatter_refine) {
                 (Layout::Scatter { count }, Some(r)) if count == i => Some(r),
                 _ => None,
             };
-            if let Some(r) = scattered {
-                // Every count, each with its other parameters refined.
-                let values: Vec<f64> = (spec.min as i64..=spec.max as i64)
-                    .map(|v| v as f64)
-                    .filter(|&v| v != here)
-                    .collect();
-                let refined: Vec<(Eval, u64)> = values
-                    .par_iter()
-                    .map(|&v| {
-                        let mut p = best.params.clone();
-                        p[i] = v;
-                        refine(shader, &p, r, target, evals)
+            let near = |v: f64| match effort.count_window {
+                Some(w) if scattered.is_none() && count == Some(i) => {
+                    (v - here).abs() <= (w * here).max(1.0)
+                }
+                _ => true,
+            };
+            let values: Vec<f64> = (spec.min as i64..=spec.max as i64)
+                .map(|v| v as f64)
+                .filter(|&v| v != here && near(v))
+                .collect();
+            let scored: Vec<(f64, f64, Vec<f64>, u64)> = values
+                .par_iter()
+                .map(|&v| {
+                    let mut p = best.params.clone();
+                    p[i] = v;
+                    Ok(match scattered {
+                        Some(r) => {
+                            let (e, n) = refine(shader, &p, r, target, evals)?;
+                            (e.objective, v, e.params, n)
+                        }
+                        None => {
+                            evals.fetch_add(1, Ordering::Relaxed);
+                            (evaluate(shader, &p, target).objective, v, p, 0)
+                        }
                     })
-                    .collect::<Result<_>>()?;
-                for (e, n) in refined {
-                    iters += n;
-                    tried.push((e.objective, e.params[i], e.params));
-                }
-            } else {
-                while v <= spec.max {
-                    if v != here && near(v) {
-                        let mut p = best.params.clone();
-                        p[i] = v;
-                        evals.fetch_add(1, Ordering::Relaxed);
-                        tried.push((evaluate(shader, &p, target).objective, v, p));
-                    }
-                    v += 1.0;
-                }
-            }
+                })
+                .collect::<Result<_>>()?;
+            iters += scored.iter().map(|t| t.3).sum::<u64>();
+            let mut tried: Vec<(f64, f64, Vec<f64>)> =
+                scored.into_iter().map(|(o, v, p, _)| (o, v, p)).collect();
             tried.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
             for (_, _, p) in tried.iter().take(effort.alternatives) {
                 let (e, n) =
