@@ -351,6 +351,7 @@ fn mean_scores(all: Vec<Scores>) -> Scores {
     s.copy_share = mean(|s| s.copy_share);
     s.repeat_share = mean(|s| s.repeat_share);
     s.seam.ratio = mean(|s| s.seam.ratio);
+    s.seam.beside_ratio = mean(|s| s.seam.beside_ratio);
     s
 }
 
@@ -372,7 +373,7 @@ pub fn run(a: &QualityArgs) -> Result<()> {
         rows: Vec::new(),
         failures: Vec::new(),
     };
-    println!("| texture | method | time | peak | S_F | S_L | colour | fidelity | copy | repeat | seam | overlap (chance) / nearest pair / joint offset |");
+    println!("| texture | method | time | peak | S_F | S_L | colour | fidelity | copy | repeat | seam (joint / beside) | overlap (chance) / nearest pair / joint offset |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for (k, file) in files.iter().enumerate() {
         let name = file
@@ -407,7 +408,7 @@ pub fn run(a: &QualityArgs) -> Result<()> {
                         )
                     });
                     println!(
-                        "| {name} | {method} | {secs:.1} s | {:.0} MiB | {:.3} | {:.3} | {:.4} | {:.2} | {:.3} | {:.3} | {:.2} | {overlap} |",
+                        "| {name} | {method} | {secs:.1} s | {:.0} MiB | {:.3} | {:.3} | {:.4} | {:.2} | {:.3} | {:.3} | {:.2} / {:.2} | {overlap} |",
                         peak as f64 / 1048576.0,
                         scores.s_f,
                         scores.s_l,
@@ -415,7 +416,8 @@ pub fn run(a: &QualityArgs) -> Result<()> {
                         scores.patch_fidelity,
                         scores.copy_share,
                         scores.repeat_share,
-                        scores.seam.ratio
+                        scores.seam.ratio,
+                        scores.seam.beside_ratio
                     );
                     cells.push((
                         img,

@@ -11,7 +11,9 @@ use super::args::parse_pair;
 use super::progress::Bars;
 use crate::budget::Budget;
 use crate::imaging::{self, paths, OutputDir};
-use crate::tiles::{self, Layout, MakeConfig, OmegaConfig, PathSearch, SomolConfig, TileSetFile};
+use crate::tiles::{
+    self, Blend, Layout, MakeConfig, OmegaConfig, PathSearch, SomolConfig, TileSetFile,
+};
 
 #[derive(Subcommand, Debug)]
 pub enum TilesCommand {
@@ -98,6 +100,12 @@ pub struct MakeArgs {
     /// optimum (slower at wide overlaps).
     #[arg(long, value_enum, default_value_t = SomolConfig::default().path)]
     pub path: PathSearch,
+    /// How far from its paths a patch blends: feather (every path pixel
+    /// over ρ = 3 pixels) or error (the paper's range scaled by the path
+    /// pixel's error, which leaves a hard step beside the joints where the
+    /// paths hug the tile's edges). The template's stitches keep the paper's.
+    #[arg(long, value_enum, default_value_t = SomolConfig::default().blend)]
+    pub blend: Blend,
     #[arg(long, default_value_t = SomolConfig::default().seed)]
     pub seed: u64,
     /// ω-tiles: the set, 8 (4 patches), 17 (5) or 38 (6).
@@ -158,6 +166,7 @@ impl TryFrom<&MakeArgs> for MakeConfig {
             template_ring: a.template_ring,
             candidates: a.candidates,
             path: a.path,
+            blend: a.blend,
             seed: a.seed,
         };
         let omega = OmegaConfig {

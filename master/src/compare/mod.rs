@@ -539,6 +539,13 @@ pub struct SeamScore {
     /// `joint_step / interior_median`: about 1 or below when the joints do not
     /// show.
     pub ratio: f64,
+    /// Mean step across the boundaries one pixel either side of the joints
+    /// (between a joint's first and second column, and its last but one and
+    /// last before it), where a stitch that hugs the joint cuts: joints that
+    /// are seamless themselves still draw a double line there.
+    pub beside_step: f64,
+    /// `beside_step / interior_median`.
+    pub beside_ratio: f64,
 }
 
 /// Seam score of `img` at joint columns `cols` and joint rows `rows` (0 = the
@@ -628,11 +635,20 @@ fn steps_score(img: &ColorImage, cols: &[usize], rows: &[usize], wrap: bool) -> 
     };
     let mut joints = Vec::new();
     let mut interior = Vec::new();
+    let mut beside = Vec::new();
     let first = usize::from(!wrap);
+    // Whether boundary `k` of `n` lies one pixel from a joint of `at` (the
+    // outer edge, 0, is one only where the caller lists it).
+    let near = |k: usize, n: usize, at: &[usize]| {
+        at.contains(&((k + 1) % n)) || at.contains(&((k + n - 1) % n))
+    };
     for c in first..w {
         if cols.contains(&c) {
             joints.push(step(c, false));
         } else {
+            if near(c, w, cols) {
+                beside.push(step(c, false));
+            }
             interior.push(step(c, false));
         }
     }
@@ -640,6 +656,9 @@ fn steps_score(img: &ColorImage, cols: &[usize], rows: &[usize], wrap: bool) -> 
         if rows.contains(&r) {
             joints.push(step(r, true));
         } else {
+            if near(r, h, rows) {
+                beside.push(step(r, true));
+            }
             interior.push(step(r, true));
         }
     }
@@ -652,17 +671,23 @@ fn steps_score(img: &ColorImage, cols: &[usize], rows: &[usize], wrap: bool) -> 
         }
     };
     let joint_step = joints.iter().sum::<f64>() / joints.len().max(1) as f64;
+    let beside_step = beside.iter().sum::<f64>() / beside.len().max(1) as f64;
     let median = q(0.5);
+    let ratio = |step: f64| {
+        if median > 0.0 {
+            step / median
+        } else if step > 0.0 {
+            f64::INFINITY
+        } else {
+            1.0
+        }
+    };
     SeamScore {
         joint_step,
         interior_median: median,
         interior_p95: q(0.95),
-        ratio: if median > 0.0 {
-            joint_step / median
-        } else if joint_step > 0.0 {
-            f64::INFINITY
-        } else {
-            1.0
-        },
+        ratio: ratio(joint_step),
+        beside_step,
+        beside_ratio: ratio(beside_step),
     }
 }

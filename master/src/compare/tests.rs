@@ -278,6 +278,38 @@ fn grid_seams_count_real_joints_only() {
 }
 
 #[test]
+fn a_step_one_pixel_inside_the_joints_shows_beside_them_not_at_them() {
+    // Cells of a smooth image in order, each brightened inside its first
+    // and last column: the joints (last column to the next cell's first)
+    // continue as before, but a stitch hugging them would step just inside.
+    let img = smooth(160, 160, 11);
+    let open = Grid {
+        tile_width: 40,
+        tile_height: 40,
+        wrap: false,
+    };
+    let plain = grid_seam(&img, open);
+    let mut stepped = img.clone();
+    for y in 0..160 {
+        for x in (0..160).filter(|x| !matches!(x % 40, 0 | 39)) {
+            let p = stepped.get(x, y).map(|v| v.saturating_add(24));
+            stepped.set(x, y, p);
+        }
+    }
+    let inside = grid_seam(&stepped, open);
+    assert!(plain.beside_ratio < 1.3, "{plain:?}");
+    assert!(inside.ratio < 1.3, "{inside:?}");
+    assert!(inside.beside_ratio > 3.0, "{inside:?}");
+    // A tileable image's beside lines are the wrap's neighbours.
+    let whole = seam_score(&stepped, &[0], &[0]);
+    let before = seam_score(&img, &[0], &[0]);
+    assert!(
+        whole.beside_step > 3.0 * before.beside_step,
+        "{whole:?} {before:?}"
+    );
+}
+
+#[test]
 fn compare_with_a_grid_reports_its_tiles() {
     let a = noise(64, 64, 255, 1);
     let g = grid(&banded_tiles(32, 0), 4, 4, 1);

@@ -9,6 +9,7 @@ use anyhow::{ensure, Result};
 use super::ais::AisSettings;
 use super::grid::check_grid;
 use super::omega::OmegaSet;
+use super::stitch::Blend;
 use super::tileset::{PathSearch, TileSetSettings};
 use crate::budget::Budget;
 use crate::imaging::ColorImage;
@@ -110,6 +111,8 @@ pub struct SomolConfig {
     pub template_ring: f64,
     pub candidates: usize,
     pub path: PathSearch,
+    /// How far from each path the stitch blends.
+    pub blend: Blend,
     pub seed: u64,
 }
 
@@ -126,6 +129,7 @@ impl Default for SomolConfig {
             template_ring: DEFAULT_TEMPLATE_RING,
             candidates: 48,
             path: PathSearch::Oscillating,
+            blend: Blend::Feather,
             seed: 1,
         }
     }
@@ -233,6 +237,7 @@ impl SomolConfig {
             candidates: self.candidates,
             refine: 4,
             path: self.path,
+            blend: self.blend,
             seed: self.seed,
         })
     }

@@ -28,5 +28,6 @@ pub use file::{load_tiles, tile_paths, TileSetFile};
 pub use grid::{assemble, check_grid, check_index, layout, random_index, read_index, Layout};
 pub use make::{make_omega, make_somol, omega_evaluator, Made};
 pub use patch::{insert_patch, PatchReport};
+pub use stitch::Blend;
 pub use template::{choose_template, make_template, Rect, TemplateChoice};
 pub use tileset::{make_tile_set, DerivedTile, PathSearch, TileSet, TileSetSettings, Wrap};

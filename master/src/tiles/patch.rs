@@ -127,26 +127,21 @@ pub fn insert_patch(
     settings: &StitchSettings,
 ) -> PatchReport {
     let (belts, cuts) = patch_cuts(tile, sample, source, target, belt, settings);
-    paste_patch(
-        tile,
-        sample,
-        (source, target),
-        (&belts, &cuts),
-        settings.rho,
-    );
+    paste_patch(tile, sample, (source, target), (&belts, &cuts), settings);
     report(source, target, &cuts)
 }
 
 /// Writes the patch `source` at `target` along cuts already found by
 /// [`patch_cuts`] (what [`insert_patch`] does after finding them), blending
-/// over `rho` pixels.
+/// as `settings` say.
 pub(super) fn paste_patch(
     tile: &mut ColorImage,
     sample: &ColorImage,
     (source, target): (Rect, Rect),
     (belts, cuts): (&[Belt; 4], &[Cut]),
-    rho: f32,
+    settings: &StitchSettings,
 ) {
+    let rho = settings.rho;
     let r1 = patch_pixels(sample, source, target);
     // Per belt and row, the first path column within the blend's reach of
     // the row: a pixel more than the reach left of it is farther than ρ from
@@ -185,7 +180,7 @@ pub(super) fn paste_patch(
                 if i + reach < near[j] {
                     continue;
                 }
-                let (alpha, (m, n)) = stitch::blend_weight(cut, rho, i, j);
+                let (alpha, (m, n)) = stitch::blend_weight(cut, rho, settings.blend, i, j);
                 if weight.is_none_or(|(a, _)| alpha < a) {
                     let (px, py) = b.pixel(m, n);
                     weight = Some((alpha, tile.get(px, py)));

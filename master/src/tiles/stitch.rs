@@ -43,6 +43,39 @@ impl Belt {
     }
 }
 
+/// How far from the path R1 is blended towards it (§2.2).
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Blend {
+    /// Every path pixel blends over ρ pixels, `α = min(d / ρ, 1)`. A patch
+    /// path pulled to a tile's edge meets the template's pixels there
+    /// wherever its error is, so the blend must reach there too
+    /// (ARCHITECTURE §7).
+    #[default]
+    Feather,
+    /// The paper's range scaled by the path pixel's error,
+    /// `α = min(d / (ρ · E[m, n] / E_max), 1)`: only path pixels with an
+    /// error near the belt's largest blend at all.
+    Error,
+}
+
+impl Blend {
+    /// What a tile set written before the choice existed used.
+    pub fn recorded_default() -> Self {
+        Self::Error
+    }
+}
+
 /// How the cut is found and blended.
 #[derive(Clone, Copy, Debug)]
 pub struct StitchSettings {
@@ -55,6 +88,8 @@ pub struct StitchSettings {
     /// farther into R2 wins and R1 covers more; the cut's map, cost and
     /// blending keep the true error. 0 = the paper's search.
     pub pull: f32,
+    /// How the blend's range follows the path's error.
+    pub blend: Blend,
 }
 
 impl Default for StitchSettings {
@@ -67,6 +102,7 @@ impl Default for StitchSettings {
             search: Some(Oscillating::default()),
             rho: 3.0,
             pull: 0.0,
+            blend: Blend::default(),
         }
     }
 }
@@ -131,10 +167,17 @@ pub fn find_cut(
 /// `α = min(d / (ρ · E[m, n]), 1)` with `(m, n)` the nearest path pixel and
 /// `d` the distance to it. The paper prints `max(…, 1)`, which would make α
 /// always 1 and turn blending off; `min` is what its text and Fig. 5
-/// describe. `E` is normalised by the map's largest error, so that no pixel
-/// farther than ρ from the path is affected, as the paper says of ρ. A path
-/// pixel itself (d = 0) takes R2's colour; where the error is 0, α = 1.
-pub fn blend_weight(cut: &Cut, rho: f32, i: usize, j: usize) -> (f32, (usize, usize)) {
+/// describe. With [`Blend::Error`] `E` is normalised by the map's largest
+/// error, so that no pixel farther than ρ from the path is affected, as the
+/// paper says of ρ; with [`Blend::Feather`] it is 1 at every path pixel. A
+/// path pixel itself (d = 0) takes R2's colour; where the error is 0, α = 1.
+pub fn blend_weight(
+    cut: &Cut,
+    rho: f32,
+    blend: Blend,
+    i: usize,
+    j: usize,
+) -> (f32, (usize, usize)) {
     let top = cut.map.max;
     if rho <= 0.0 || top <= 0.0 {
         return (1.0, (i, j));
@@ -154,7 +197,10 @@ pub fn blend_weight(cut: &Cut, rho: f32, i: usize, j: usize) -> (f32, (usize, us
     if best_d2 == usize::MAX {
         return (1.0, (i, j));
     }
-    let e = cut.map.at(best.0, best.1) / top;
+    let e = match blend {
+        Blend::Feather => 1.0,
+        Blend::Error => cut.map.at(best.0, best.1) / top,
+    };
     let d = (best_d2 as f32).sqrt();
     let alpha = if e > 0.0 {
         (d / (rho * e)).min(1.0)
@@ -177,7 +223,7 @@ pub fn stitch(
 ) -> Cut {
     let r2 = |x: usize, y: usize| canvas.get(x, y);
     let cut = find_cut(belt, &r1, r2, settings);
-    apply(canvas, belt, &cut, r1, settings.rho, keep);
+    apply(canvas, belt, &cut, r1, settings, keep);
     cut
 }
 
@@ -187,7 +233,7 @@ pub fn apply(
     belt: &Belt,
     cut: &Cut,
     r1: impl Fn(usize, usize) -> [u8; 3],
-    rho: f32,
+    settings: &StitchSettings,
     keep: impl Fn(usize, usize) -> bool,
 ) {
     let mut writes = Vec::new();
@@ -203,7 +249,7 @@ pub fn apply(
             let (alpha, (m, n)) = if i == 0 {
                 (1.0, (i, j))
             } else {
-                blend_weight(cut, rho, i, j)
+                blend_weight(cut, settings.rho, settings.blend, i, j)
             };
             let a = r1(x, y);
             let colour = if alpha >= 1.0 {

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use super::config::PULL_MAX;
 use super::patch::{insert_patch, paste_patch, patch_cuts, report, PatchReport};
-use super::stitch::StitchSettings;
+use super::stitch::{Blend, StitchSettings};
 use super::template::{choose_template, choose_templates, make_template, Rect, TemplateChoice};
 use crate::imaging::ColorImage;
 use crate::progress::Progress;
@@ -54,6 +54,11 @@ pub struct TileSetSettings {
     pub refine: usize,
     /// How every stitch finds its path.
     pub path: PathSearch,
+    /// How the patch stitches blend along their paths (the template's keep
+    /// the paper's; a file without it was blended by error,
+    /// [`Blend::recorded_default`]).
+    #[serde(default = "Blend::recorded_default")]
+    pub blend: Blend,
     pub seed: u64,
 }
 
@@ -99,13 +104,14 @@ pub fn equal_share(tile: &ColorImage, other: &ColorImage) -> f64 {
 }
 
 impl PathSearch {
-    fn stitch_settings(self, pull: f32) -> StitchSettings {
+    fn stitch_settings(self, pull: f32, blend: Blend) -> StitchSettings {
         StitchSettings {
             search: match self {
                 Self::Oscillating => Some(Oscillating::default()),
                 Self::Optimal => None,
             },
             pull,
+            blend,
             ..StitchSettings::default()
         }
     }
@@ -487,7 +493,7 @@ fn choose_patch(
                 ..target
             };
             let cut = (&c.belts, &c.cuts[..]);
-            paste_patch(&mut t, sample, (source, target), cut, cutting.stitch.rho);
+            paste_patch(&mut t, sample, (source, target), cut, cutting.stitch);
             wrap_ratio(&t.crop(0, 0, tw, th)) > bound
         })
     };
@@ -500,6 +506,12 @@ fn choose_patch(
     let rung_of = |x: usize, y: usize| {
         let r = Rect { x, y, ..target };
         let share_rung = |o: &Rect| {
+            // The same place: taken, whatever the sizes (a patch that wraps
+            // one edge is a pixel wider or taller than one that wraps the
+            // other, and shares a little less than all of it).
+            if (o.x, o.y) == (r.x, r.y) {
+                return SHARE_RUNGS.len();
+            }
             let (common, smaller) = (
                 r.intersection_area(o),
                 (r.width * r.height).min(o.width * o.height),
@@ -651,8 +663,11 @@ pub fn make_tile_set(
     s: &TileSetSettings,
     progress: &dyn Progress,
 ) -> anyhow::Result<TileSet> {
-    let template_stitch = s.path.stitch_settings(0.0);
-    let stitch_settings = s.path.stitch_settings(s.pull);
+    // The template's stitches are free in their bands (no pull), and keep
+    // the paper's blend: feathered, they blur the objects their paths pass
+    // round. The blend choice is the patches'.
+    let template_stitch = s.path.stitch_settings(0.0, Blend::Error);
+    let stitch_settings = s.path.stitch_settings(s.pull, s.blend);
     progress.start("tiles", s.tiles as u64, "tiles");
     let t0 = std::time::Instant::now();
     let (tile0, choice, costs) = template_tile(sample, template, s, &template_stitch)?;
@@ -706,7 +721,7 @@ pub fn make_tile_set(
         // else it lies inside the tile's own edges. With a margin it lies
         // inside that.
         let rung = |pull: f32| {
-            let settings = s.path.stitch_settings(pull);
+            let settings = s.path.stitch_settings(pull, s.blend);
             let cutting = Cutting {
                 stitch: &settings,
                 joints: Some((joint_bound, (tw, th))),
