@@ -1109,6 +1109,26 @@ fn a_somol_grid_hides_its_joints_and_raw_crops_fail_the_same_bound() {
     assert!(!ok_bad, "raw crops should fail: joint ratio {rb}");
 }
 
+/// An 8-tile set of 64-px tiles made with `config` (its tile size set),
+/// laid 8×8 at random (seed 3), and the grid it wraps as.
+fn marble_wall(sample: &ColorImage, config: tiles::SomolConfig) -> (ColorImage, compare::Grid) {
+    let mut s = tiles::SomolConfig {
+        tile_size: Some(64),
+        ..config
+    }
+    .settings(sample, None)
+    .unwrap();
+    s.tiles = 8;
+    let set = tiles::make_tile_set(sample, None, &s, &Silent).unwrap();
+    let grid = tiles::assemble(&set.tiles, &tiles::random_index(8, 8, 8, 3)).unwrap();
+    let g = compare::Grid {
+        tile_width: 64,
+        tile_height: 64,
+        wrap: true,
+    };
+    (grid, g)
+}
+
 #[test]
 fn the_template_s_ring_falls_on_typical_texture_and_border_error_alone_draws_the_grid() {
     // Every tile keeps the template's border ring, so a pale ring is a pale
@@ -1119,21 +1139,13 @@ fn the_template_s_ring_falls_on_typical_texture_and_border_error_alone_draws_the
     // sample's and its joints fall on typical marble.
     let sample = texture("pink_marble_color_128.png");
     let offset = |ring: f64| {
-        let mut s = tiles::SomolConfig {
-            tile_size: Some(64),
-            template_ring: ring,
-            ..Default::default()
-        }
-        .settings(&sample, None)
-        .unwrap();
-        s.tiles = 8;
-        let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
-        let grid = tiles::assemble(&set.tiles, &tiles::random_index(8, 8, 8, 3)).unwrap();
-        let g = compare::Grid {
-            tile_width: 64,
-            tile_height: 64,
-            wrap: true,
-        };
+        let (grid, g) = marble_wall(
+            &sample,
+            tiles::SomolConfig {
+                template_ring: ring,
+                ..Default::default()
+            },
+        );
         let (ok, r) = joints_within_bound(&grid, 64, 64);
         assert!(ok, "ring weight {ring}: joint ratio {r}");
         compare::joint_offset(&grid, g)
@@ -1160,21 +1172,13 @@ fn patch_stitches_feather_so_no_step_runs_beside_the_joints() {
     // blends over ρ and the lines beside the joints step as the interior.
     let sample = texture("pink_marble_color_128.png");
     let beside = |blend: tiles::Blend| {
-        let mut s = tiles::SomolConfig {
-            tile_size: Some(64),
-            blend,
-            ..Default::default()
-        }
-        .settings(&sample, None)
-        .unwrap();
-        s.tiles = 8;
-        let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
-        let grid = tiles::assemble(&set.tiles, &tiles::random_index(8, 8, 8, 3)).unwrap();
-        let g = compare::Grid {
-            tile_width: 64,
-            tile_height: 64,
-            wrap: true,
-        };
+        let (grid, g) = marble_wall(
+            &sample,
+            tiles::SomolConfig {
+                blend,
+                ..Default::default()
+            },
+        );
         let seam = compare::grid_seam(&grid, g);
         assert!(seam.ratio < 1.15, "{blend:?}: {seam:?}");
         seam.beside_ratio
