@@ -180,7 +180,7 @@ pub(super) fn paste_patch(
                 if i + reach < near[j] {
                     continue;
                 }
-                let (alpha, (m, n)) = stitch::blend_weight(cut, rho, settings.blend, i, j);
+                let (alpha, (m, n)) = stitch::blend_weight(cut, settings, i, j);
                 if weight.is_none_or(|(a, _)| alpha < a) {
                     let (px, py) = b.pixel(m, n);
                     weight = Some((alpha, tile.get(px, py)));

@@ -93,10 +93,10 @@ pub struct StitchSettings {
 }
 
 impl Default for StitchSettings {
-    /// The oscillating search and ρ = 3. From its seam start it stays within
-    /// 1.15× of the optimum and runs several times faster than the `O(h·w³)`
-    /// dynamic programme, which dominated the time per tile at wide belts
-    /// (ARCHITECTURE §7).
+    /// The oscillating search, ρ = 3 and the feathered blend. From its seam
+    /// start the search stays within 1.15× of the optimum and runs several
+    /// times faster than the `O(h·w³)` dynamic programme, which dominated
+    /// the time per tile at wide belts (ARCHITECTURE §7).
     fn default() -> Self {
         Self {
             search: Some(Oscillating::default()),
@@ -173,11 +173,11 @@ pub fn find_cut(
 /// path pixel itself (d = 0) takes R2's colour; where the error is 0, α = 1.
 pub fn blend_weight(
     cut: &Cut,
-    rho: f32,
-    blend: Blend,
+    settings: &StitchSettings,
     i: usize,
     j: usize,
 ) -> (f32, (usize, usize)) {
+    let rho = settings.rho;
     let top = cut.map.max;
     if rho <= 0.0 || top <= 0.0 {
         return (1.0, (i, j));
@@ -197,7 +197,7 @@ pub fn blend_weight(
     if best_d2 == usize::MAX {
         return (1.0, (i, j));
     }
-    let e = match blend {
+    let e = match settings.blend {
         Blend::Feather => 1.0,
         Blend::Error => cut.map.at(best.0, best.1) / top,
     };
@@ -249,7 +249,7 @@ pub fn apply(
             let (alpha, (m, n)) = if i == 0 {
                 (1.0, (i, j))
             } else {
-                blend_weight(cut, settings.rho, settings.blend, i, j)
+                blend_weight(cut, settings, i, j)
             };
             let a = r1(x, y);
             let colour = if alpha >= 1.0 {
