@@ -1470,3 +1470,47 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
     );
     assert!(cap != run("synth", "use60", &["--repeat-percent", "60"]));
 }
+
+/// The 7×7 synthesis on coordinates defaults to 8 candidates per set and 4
+/// passes (as `--k 8 --passes 4`, not the earlier `--k 4 --passes 3`), the
+/// other neighbourhoods to 4 candidates; `--k` is checked and belongs to
+/// `--method parallel`.
+#[test]
+fn parallel_seven_defaults_to_eight_candidates_and_four_passes() {
+    let dir = tempfile::tempdir().unwrap();
+    let sample = assets().join("brick_color_96.png");
+    let run = |name: &str, extra: &[&str]| -> Vec<u8> {
+        let out = dir.path().join(format!("{name}.png"));
+        let args = [
+            &["synth", s(&sample), "-o", s(&out), "--size", "112x112"][..],
+            &["--method", "parallel", "-q"][..],
+            extra,
+        ]
+        .concat();
+        common::ok(&args);
+        std::fs::read(&out).unwrap()
+    };
+    let seven = run("seven", &["--neighbourhood", "7"]);
+    let spelled = ["--neighbourhood", "7", "--k", "8", "--passes", "4"];
+    assert!(seven == run("spelled", &spelled));
+    let before = ["--neighbourhood", "7", "--k", "4", "--passes", "3"];
+    assert!(seven != run("before", &before));
+    let reduced = run("reduced", &[]);
+    assert!(reduced == run("reduced4", &["--k", "4"]));
+    assert!(reduced != run("reduced8", &["--k", "8"]));
+    let out = dir.path().join("bad.png");
+    for (extra, words) in [
+        (&["--method", "parallel", "--k", "0"][..], "1..=16"),
+        (&["--method", "parallel", "--k", "17"][..], "1..=16"),
+        (&["--k", "4"][..], "belongs to --method parallel"),
+    ] {
+        let head = ["synth", s(&sample), "-o", s(&out), "--size", "64x64", "-q"];
+        let args = [&head[..], extra].concat();
+        let o = texsyn(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{extra:?}: {err}");
+        assert!(err.contains(words), "{extra:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    assert!(!out.exists());
+}

@@ -244,6 +244,7 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
         "--histogram belongs to --method parallel"
     );
     ensure!(a.passes.is_none(), "--passes belongs to --method parallel");
+    ensure!(a.k.is_none(), "--k belongs to --method parallel");
     ensure!(
         a.coherence.is_none(),
         "--coherence belongs to --method parallel"
@@ -345,7 +346,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
     ];
     if let Some((flag, _)) = block_flags.iter().find(|(_, given)| *given) {
         anyhow::bail!(
-            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --coherence, --seed, --coords and the run flags)"
+            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --k, --coherence, --seed, --coords and the run flags)"
         );
     }
     let args = ParallelArgs {
@@ -355,6 +356,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         seed: c.seed,
         correct_every_level: a.correct_every_level,
         passes: a.passes,
+        k: a.k,
         coherence: a.coherence,
         histogram: a
             .histogram

@@ -186,10 +186,14 @@ pub struct SynthArgs {
     /// more is only jittered, so no offset copies the sample over the output).
     #[arg(long)]
     pub correct_every_level: bool,
-    /// --method parallel: correction passes per level (1 to 64; default 4
-    /// for reduced and half, 3 for --neighbourhood 5 and 7; the paper's is 2).
+    /// --method parallel: correction passes per level (1 to 64; default 4;
+    /// the paper's is 2).
     #[arg(long)]
     pub passes: Option<usize>,
+    /// --method parallel: k of the k-coherence candidate sets (1 to 16;
+    /// default 8 for --neighbourhood 7, 4 for the others).
+    #[arg(long)]
+    pub k: Option<usize>,
     /// --method parallel: coherence weight c ≥ 0 of the correction's choice
     /// (a candidate that v of the pixel's 3×3 neighbours continue has its
     /// distance scaled by 1 + c·(1 − v/9); default 10 for reduced and half,

@@ -11,6 +11,7 @@ use super::progress::Bars;
 use super::{parse_size, RunArgs};
 use crate::imaging::{self, ColorImage};
 use crate::parallel::cache::CandidateCache;
+use crate::parallel::candidates::MAX_K;
 use crate::parallel::driver::Start;
 use crate::parallel::synth::{self, MorphColour, Neighbourhood, ParallelSettings, Synthesis};
 use crate::parallel::weights;
@@ -76,10 +77,15 @@ pub struct ParallelArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Correction passes per level, each of four sub-passes (1 to 64;
-    /// default 3 for the 5 and 7 neighbourhoods; for reduced and half 4 in
+    /// default 4 for the 5 and 7 neighbourhoods; for reduced and half 4 in
     /// `synth` and the paper's 2 in `morph`).
     #[arg(long)]
     pub passes: Option<usize>,
+    /// k of the k-coherence candidate sets (1 to 16): each pixel compares
+    /// 9·k candidates per exemplar. Default 8 for the 7 neighbourhood, 4 for
+    /// the others.
+    #[arg(long)]
+    pub k: Option<usize>,
     /// Coherence weight c ≥ 0 of the correction's choice: a candidate that
     /// v of the pixel's 3×3 neighbours continue coherently has its distance
     /// scaled by 1 + c·(1 − v/9). Default 10 for reduced and half, 0 (the
@@ -168,6 +174,11 @@ impl ParallelArgs {
             (1..=64).contains(&passes),
             "--passes {passes} must be in 1..=64"
         );
+        let k = self.k.unwrap_or(defaults.k);
+        ensure!(
+            (1..=MAX_K).contains(&k),
+            "--k {k} must be in 1..={MAX_K} (the candidates each pixel compares per neighbour)"
+        );
         let coherence = self.coherence.unwrap_or(defaults.coherence);
         ensure!(
             coherence.is_finite() && (0.0..=1000.0).contains(&coherence),
@@ -175,6 +186,7 @@ impl ParallelArgs {
         );
         Ok(ParallelSettings {
             passes,
+            k,
             coherence,
             jitter: match &self.jitter {
                 Some(j) => parse_jitter(j)?,
