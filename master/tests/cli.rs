@@ -1471,12 +1471,12 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
     assert!(cap != run("synth", "use60", &["--repeat-percent", "60"]));
 }
 
-/// The 7×7 synthesis on coordinates defaults to 8 candidates per set and 4
-/// passes (as `--k 8 --passes 4`, not the earlier `--k 4 --passes 3`), the
+/// The 7×7 synthesis on coordinates defaults to 8 candidates per set and 5
+/// passes (as `--k 8 --passes 5`, not the earlier `--k 4 --passes 3`), the
 /// other neighbourhoods to 4 candidates; `--k` is checked and belongs to
 /// `--method parallel`.
 #[test]
-fn parallel_seven_defaults_to_eight_candidates_and_four_passes() {
+fn parallel_seven_defaults_to_eight_candidates_and_five_passes() {
     let dir = tempfile::tempdir().unwrap();
     let sample = assets().join("brick_color_96.png");
     let run = |name: &str, extra: &[&str]| -> Vec<u8> {
@@ -1491,7 +1491,7 @@ fn parallel_seven_defaults_to_eight_candidates_and_four_passes() {
         std::fs::read(&out).unwrap()
     };
     let seven = run("seven", &["--neighbourhood", "7"]);
-    let spelled = ["--neighbourhood", "7", "--k", "8", "--passes", "4"];
+    let spelled = ["--neighbourhood", "7", "--k", "8", "--passes", "5"];
     assert!(seven == run("spelled", &spelled));
     let before = ["--neighbourhood", "7", "--k", "4", "--passes", "3"];
     assert!(seven != run("before", &before));

@@ -186,8 +186,8 @@ pub struct SynthArgs {
     /// more is only jittered, so no offset copies the sample over the output).
     #[arg(long)]
     pub correct_every_level: bool,
-    /// --method parallel: correction passes per level (1 to 64; default 4;
-    /// the paper's is 2).
+    /// --method parallel: correction passes per level (1 to 64; default 5
+    /// for --neighbourhood 7, 4 for the others; the paper's is 2).
     #[arg(long)]
     pub passes: Option<usize>,
     /// --method parallel: k of the k-coherence candidate sets (1 to 16;

@@ -77,7 +77,7 @@ pub struct ParallelArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Correction passes per level, each of four sub-passes (1 to 64;
-    /// default 4 for the 5 and 7 neighbourhoods; for reduced and half 4 in
+    /// default 4 for the 5 neighbourhood and 5 for 7; for reduced and half 4 in
     /// `synth` and the paper's 2 in `morph`).
     #[arg(long)]
     pub passes: Option<usize>,

@@ -131,12 +131,13 @@ pub fn default_jitter(n: Neighbourhood) -> &'static [f64] {
 pub const DEFAULT_HISTOGRAM: f32 = 1.0;
 
 /// Correction passes per level that the command line gives `n` unless told
-/// otherwise. For 7×7 4, whose corrections had not settled after two: on 8
+/// otherwise. For 7×7 5, whose corrections had not settled after two: on 8
 /// samples at 2× their side a third 7×7 pass lowered the patch fidelity
 /// ratio to the block method on every one (facade 1.81 → 1.67, tiles
 /// 1.47 → 1.37, leaves 1.34 → 1.27, brick 96 1.32 → 1.25) for about 1.3×
-/// the time, and a fourth (with [`default_k`]'s 8 candidates) lowered it on
-/// 20 of the 22 samples up to 256² (median 1.26 → 1.23). For 5×5 4 (with
+/// the time; with [`default_k`]'s 8 candidates, on the 22 samples up to
+/// 256² it came within 1.3 on 17 with 4 passes, 19 with 5 and 18 with 6
+/// (largest `copy_share` 0.063, 0.080, 0.096). For 5×5 4 (with
 /// [`default_jitter`]): on the 22 samples up to
 /// 256² at 2× their side its fidelity ratio was within 1.3 on 15 with 3
 /// passes and on 18 with 4. For `reduced` and `half`, with their coherence
@@ -147,6 +148,7 @@ pub const DEFAULT_HISTOGRAM: f32 = 1.0;
 /// under 2 and 3 s.
 pub fn default_passes(n: Neighbourhood, morph: bool) -> usize {
     match n {
+        Neighbourhood::Full(7) => 5,
         Neighbourhood::Full(_) => 4,
         Neighbourhood::Reduced | Neighbourhood::Half if morph => 2,
         Neighbourhood::Reduced | Neighbourhood::Half => 4,
@@ -158,7 +160,7 @@ pub fn default_passes(n: Neighbourhood, morph: bool) -> usize {
 /// candidates apart finely enough that more of them pay: on the 22 samples
 /// up to 256² at 2× their side (4 passes) its patch fidelity came within
 /// 1.3× of the block method's on 17 (16 with k = 4, brick 256 1.38 → 1.19)
-/// for about 1.5× the time; 4, the paper's order, for the others, where 8
+/// for about 1.5× the time, and with [`default_passes`]' 5 on 19; 4, the paper's order, for the others, where 8
 /// did not help (`reduced` 4 of 22 against 3, 5×5 11 against 12).
 pub fn default_k(n: Neighbourhood) -> usize {
     match n {
