@@ -156,12 +156,13 @@ pub fn default_passes(n: Neighbourhood, morph: bool) -> usize {
 }
 
 /// The k of the candidate sets ([`ParallelSettings::k`]) that the command
-/// line gives `n` unless told otherwise: 8 for 7×7, whose 49 points tell
+/// line gives `n` unless told otherwise. 8 for 7×7, whose 49 points tell
 /// candidates apart finely enough that more of them pay: on the 22 samples
 /// up to 256² at 2× their side (4 passes) its patch fidelity came within
 /// 1.3× of the block method's on 17 (16 with k = 4, brick 256 1.38 → 1.19)
-/// for about 1.5× the time, and with [`default_passes`]' 5 on 19; 4, the paper's order, for the others, where 8
-/// did not help (`reduced` 4 of 22 against 3, 5×5 11 against 12).
+/// for about 1.5× the time, and with [`default_passes`]' 5 on 19. 4, the
+/// paper's order, for the others, where 8 did not help (`reduced` 4 of 22
+/// against 3, 5×5 11 against 12).
 pub fn default_k(n: Neighbourhood) -> usize {
     match n {
         Neighbourhood::Full(7) => 8,
