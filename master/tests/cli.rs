@@ -1476,6 +1476,51 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
 /// other neighbourhoods to 4 candidates; `--k` is checked and belongs to
 /// `--method parallel`.
 #[test]
+fn parallel_five_gives_its_finest_level_eight_passes() {
+    let dir = tempfile::tempdir().unwrap();
+    let sample = assets().join("brick_color_96.png");
+    let run = |name: &str, extra: &[&str]| -> Vec<u8> {
+        let out = dir.path().join(format!("{name}.png"));
+        let args = [
+            &["synth", s(&sample), "-o", s(&out), "--size", "112x112"][..],
+            &["--method", "parallel", "--neighbourhood", "5", "-q"][..],
+            extra,
+        ]
+        .concat();
+        common::ok(&args);
+        std::fs::read(&out).unwrap()
+    };
+    let five = run("five", &[]);
+    assert!(five == run("spelled", &["--passes", "4", "--fine-passes", "8"]));
+    // --passes alone sets every level, the finest included (the paper's 2
+    // stays reachable), and differs from the default.
+    let flat = run("flat", &["--passes", "4"]);
+    assert!(five != flat);
+    assert!(flat == run("flat-spelled", &["--passes", "4", "--fine-passes", "4"]));
+    let out = dir.path().join("bad.png");
+    for (extra, words) in [
+        (
+            &["--method", "parallel", "--fine-passes", "0"][..],
+            "1..=64",
+        ),
+        (
+            &["--method", "parallel", "--fine-passes", "65"][..],
+            "1..=64",
+        ),
+        (&["--fine-passes", "4"][..], "belongs to --method parallel"),
+    ] {
+        let head = ["synth", s(&sample), "-o", s(&out), "--size", "64x64", "-q"];
+        let args = [&head[..], extra].concat();
+        let o = texsyn(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{extra:?}: {err}");
+        assert!(err.contains(words), "{extra:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    assert!(!out.exists());
+}
+
+#[test]
 fn parallel_seven_defaults_to_eight_candidates_and_five_passes() {
     let dir = tempfile::tempdir().unwrap();
     let sample = assets().join("brick_color_96.png");

@@ -244,6 +244,10 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
         "--histogram belongs to --method parallel"
     );
     ensure!(a.passes.is_none(), "--passes belongs to --method parallel");
+    ensure!(
+        a.fine_passes.is_none(),
+        "--fine-passes belongs to --method parallel"
+    );
     ensure!(a.k.is_none(), "--k belongs to --method parallel");
     ensure!(
         a.coherence.is_none(),
@@ -346,7 +350,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
     ];
     if let Some((flag, _)) = block_flags.iter().find(|(_, given)| *given) {
         anyhow::bail!(
-            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --k, --coherence, --seed, --coords and the run flags)"
+            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --fine-passes, --k, --coherence, --seed, --coords and the run flags)"
         );
     }
     let args = ParallelArgs {
@@ -356,6 +360,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         seed: c.seed,
         correct_every_level: a.correct_every_level,
         passes: a.passes,
+        fine_passes: a.fine_passes,
         k: a.k,
         coherence: a.coherence,
         histogram: a

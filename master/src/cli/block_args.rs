@@ -190,6 +190,11 @@ pub struct SynthArgs {
     /// for --neighbourhood 7, 4 for the others; the paper's is 2).
     #[arg(long)]
     pub passes: Option<usize>,
+    /// --method parallel: correction passes of the finest level (1 to 64;
+    /// default 8 for --neighbourhood 5 and
+    /// reduced, else as --passes).
+    #[arg(long)]
+    pub fine_passes: Option<usize>,
     /// --method parallel: k of the k-coherence candidate sets (1 to 16;
     /// default 8 for --neighbourhood 7, 4 for the others).
     #[arg(long)]
