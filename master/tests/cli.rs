@@ -1505,7 +1505,7 @@ fn synth_refused(dir: &Path, sample: &Path, cases: &[(&[&str], &str)]) {
 }
 
 #[test]
-fn parallel_five_gives_its_finest_level_eight_passes() {
+fn parallel_five_takes_seven_guarded_passes_and_the_finest_level_its_own() {
     let dir = tempfile::tempdir().unwrap();
     let sample = assets().join("brick_color_96.png");
     let run = |name: &str, extra: &[&str]| {
@@ -1513,13 +1513,16 @@ fn parallel_five_gives_its_finest_level_eight_passes() {
         parallel_synth(dir.path(), &sample, name, &five)
     };
     let five = run("five", &[]);
-    assert!(five == run("spelled", &["--passes", "4", "--fine-passes", "8"]));
+    let spelled = ["--passes", "7", "--copy-guard", "0.08"];
+    assert!(five == run("spelled", &spelled));
+    assert!(five != run("before", &["--passes", "4"]));
     // --passes alone sets every level, the finest included (the paper's 2
-    // stays reachable), and differs from the default.
+    // stays reachable); --fine-passes sets the finest apart.
     let flat = run("flat", &["--passes", "4"]);
-    assert!(five != flat);
     assert!(flat == run("flat-spelled", &["--passes", "4", "--fine-passes", "4"]));
+    assert!(flat != run("fine", &["--passes", "4", "--fine-passes", "8"]));
     let p = ["--method", "parallel", "--fine-passes"];
+    let g = ["--method", "parallel", "--copy-guard"];
     synth_refused(
         dir.path(),
         &sample,
@@ -1527,6 +1530,13 @@ fn parallel_five_gives_its_finest_level_eight_passes() {
             (&[&p[..], &["0"]].concat(), "1..=64"),
             (&[&p[..], &["65"]].concat(), "1..=64"),
             (&["--fine-passes", "4"], "belongs to --method parallel"),
+            (&[&g[..], &["1"]].concat(), "must be in (0, 1)"),
+            (
+                &["--method", "parallel", "--copy-guard=-0.2"],
+                "must be in (0, 1)",
+            ),
+            (&[&g[..], &["NaN"]].concat(), "must be in (0, 1)"),
+            (&["--copy-guard", "0.1"], "belongs to --method parallel"),
         ],
     );
 }

@@ -248,6 +248,10 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
         a.fine_passes.is_none(),
         "--fine-passes belongs to --method parallel"
     );
+    ensure!(
+        a.copy_guard.is_none(),
+        "--copy-guard belongs to --method parallel"
+    );
     ensure!(a.k.is_none(), "--k belongs to --method parallel");
     ensure!(
         a.coherence.is_none(),
@@ -350,7 +354,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
     ];
     if let Some((flag, _)) = block_flags.iter().find(|(_, given)| *given) {
         anyhow::bail!(
-            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --fine-passes, --k, --coherence, --seed, --coords and the run flags)"
+            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --fine-passes, --copy-guard, --k, --coherence, --seed, --coords and the run flags)"
         );
     }
     let args = ParallelArgs {
@@ -361,6 +365,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         correct_every_level: a.correct_every_level,
         passes: a.passes,
         fine_passes: a.fine_passes,
+        copy_guard: a.copy_guard,
         k: a.k,
         coherence: a.coherence,
         histogram: a

@@ -77,16 +77,22 @@ pub struct ParallelArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Correction passes per level, each of four sub-passes (1 to 64;
-    /// default 4 for the 5 neighbourhood and 5 for 7; for reduced and half 4 in
+    /// default 7 for the 5 neighbourhood and 5 for 7; for reduced and half 4 in
     /// `synth` and the paper's 2 in `morph`).
     #[arg(long)]
     pub passes: Option<usize>,
-    /// Correction passes of the finest level (1 to 64; default 8 for the 5
-    /// and reduced neighbourhoods in `synth`, else as --passes): the finest level refines
+    /// Correction passes of the finest level (1 to 64; default 8 for the
+    /// reduced neighbourhood in `synth`, else as --passes): the finest level refines
     /// a layout the coarser ones decided, so more passes there sharpen
     /// without copying the sample.
     #[arg(long)]
     pub fine_passes: Option<usize>,
+    /// Copy guard: no pixel moves to an offset from the exemplar that more
+    /// than this share of the level already holds, so no copy of the
+    /// exemplar grows past it (0 < share < 1; 0: off, the paper's; default
+    /// 0.08 for the 5 neighbourhood in `synth`, off for the others).
+    #[arg(long)]
+    pub copy_guard: Option<f32>,
     /// k of the k-coherence candidate sets (1 to 16): each pixel compares
     /// 9·k candidates per exemplar. Default 8 for the 7 neighbourhood, 4 for
     /// the others.
@@ -189,6 +195,17 @@ impl ParallelArgs {
         if let Some(p) = fine_passes {
             ensure!((1..=64).contains(&p), "--fine-passes {p} must be in 1..=64");
         }
+        let copy_guard = match self.copy_guard {
+            None => defaults.copy_guard,
+            Some(0.0) => None,
+            Some(g) => {
+                ensure!(
+                    g.is_finite() && g > 0.0 && g < 1.0,
+                    "--copy-guard {g} must be in (0, 1), or 0 to turn it off"
+                );
+                Some(g)
+            }
+        };
         let k = self.k.unwrap_or(defaults.k);
         ensure!(
             (1..=MAX_K).contains(&k),
@@ -202,6 +219,7 @@ impl ParallelArgs {
         Ok(ParallelSettings {
             passes,
             fine_passes,
+            copy_guard,
             k,
             coherence,
             jitter: match &self.jitter {

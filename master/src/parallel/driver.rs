@@ -48,6 +48,13 @@ pub struct ParallelSettings {
     /// their contrast past 1.2× and their Nyquist energy past the
     /// exemplar's (ARCHITECTURE §11).
     pub coherence: f32,
+    /// The copy guard (ARCHITECTURE §10): before each correction sub-pass
+    /// of a plane, the offsets (coordinate minus `h` times the position,
+    /// modulo the exemplar) that more than this share of the level's pixels
+    /// hold are closed, so no pixel moves into one and no coherent copy of
+    /// the exemplar grows past it; pixels already there may stay. None: no
+    /// guard (the paper's). Solids take none.
+    pub copy_guard: Option<f32>,
     /// Strength of the histogram matching of the blend before each
     /// correction sub-pass, 0 to 1 ([`super::histogram`]; 0: the paper's
     /// plain method).
@@ -88,6 +95,7 @@ impl ParallelSettings {
             passes: default_passes(n, morph),
             fine_passes: default_fine_passes(n, morph),
             coherence: default_coherence(n),
+            copy_guard: default_copy_guard(n, morph),
             jitter: default_jitter(n).to_vec(),
             k: default_k(n),
             ..Self::default()
@@ -117,6 +125,7 @@ impl Default for ParallelSettings {
             every_level: false,
             k: 4,
             coherence: 0.0,
+            copy_guard: None,
             histogram: DEFAULT_HISTOGRAM,
             seed: 1,
             budget: crate::budget::Budget::default(),
@@ -155,10 +164,12 @@ pub const DEFAULT_HISTOGRAM: f32 = 1.0;
 /// 1.47 → 1.37, leaves 1.34 → 1.27, brick 96 1.32 → 1.25) for about 1.3×
 /// the time; with [`default_k`]'s 8 candidates, on the 22 samples up to
 /// 256² it came within 1.3 on 17 with 4 passes, 19 with 5 and 18 with 6
-/// (largest `copy_share` 0.063, 0.080, 0.096). For 5×5 4 (with
-/// [`default_jitter`]): on the 22 samples up to
-/// 256² at 2× their side its fidelity ratio was within 1.3 on 15 with 3
-/// passes and on 18 with 4. For `reduced` and `half`, with their coherence
+/// (largest `copy_share` 0.063, 0.080, 0.096). For 5×5 7 in a synthesis,
+/// under [`default_copy_guard`] (with [`default_jitter`]): against the
+/// block method of 2026-12-03, on the 22 samples up to 256² at 2× their
+/// side its fidelity ratio was within 1.3 on 12 with 4 passes, 14 with 5,
+/// and unguarded 17 with 7 but one offset over 0.12 of an output; guarded,
+/// 17 with 7 or 8 (largest `copy_share` 0.054, 0.057); 4 in a morph. For `reduced` and `half`, with their coherence
 /// weight ([`default_coherence`]), 4 in a synthesis: on the 22 samples up
 /// to 256² at 2× their side the median fidelity ratio
 /// to the block method fell from 1.50 (2 passes) to 1.37 (`reduced`); a
@@ -167,6 +178,7 @@ pub const DEFAULT_HISTOGRAM: f32 = 1.0;
 pub fn default_passes(n: Neighbourhood, morph: bool) -> usize {
     match n {
         Neighbourhood::Full(7) => 5,
+        Neighbourhood::Full(5) if !morph => 7,
         Neighbourhood::Full(_) => 4,
         Neighbourhood::Reduced | Neighbourhood::Half if morph => 2,
         Neighbourhood::Reduced | Neighbourhood::Half => 4,
@@ -175,17 +187,32 @@ pub fn default_passes(n: Neighbourhood, morph: bool) -> usize {
 
 /// The finest level's correction passes that the command line gives `n`
 /// in a synthesis unless told otherwise ([`ParallelSettings::fine_passes`]):
-/// 8 for 5×5 and `reduced`, none (as the other levels) for `half` and 7×7.
-/// On the 22 samples up to 256² at 2× their side the 5×5 fidelity ratio to
-/// the block method came within 1.3 on 16 (12 with 4 passes everywhere),
-/// largest `copy_share` 0.085: 4 passes at the coarser levels and 8 at the
-/// finest beat 5, 6 or 7 everywhere (14, 15 and 17, but `copy_share` up to
-/// 0.105 and 0.124: the coarse passes grow one offset), and 12 at the
-/// finest gained nothing (16). `reduced` came within 1.3 on 5 (from 3);
-/// `half` stayed at 1. A morph keeps its passes.
+/// 8 for `reduced`, none (as the other levels) elsewhere. On the 22 samples
+/// up to 256² at 2× their side `reduced`'s fidelity ratio to the block
+/// method came within 1.3 on 5 (3 with 4 passes everywhere; 12 gained
+/// nothing more), largest `copy_share` 0.080; `half` stayed at 1. For 5×5
+/// 8 at the finest and 4 elsewhere took it from 12 to 16 (copy up to
+/// 0.085), but 7 everywhere under [`default_copy_guard`] to 17 (0.054).
+/// A morph keeps its passes.
 pub fn default_fine_passes(n: Neighbourhood, morph: bool) -> Option<usize> {
     match n {
-        Neighbourhood::Full(5) | Neighbourhood::Reduced if !morph => Some(8),
+        Neighbourhood::Reduced if !morph => Some(8),
+        _ => None,
+    }
+}
+
+/// The copy guard ([`ParallelSettings::copy_guard`]) the command line gives
+/// `n` unless told otherwise: 0.08 for 5×5 in a synthesis, whose 7 passes
+/// ([`default_passes`]) grow one offset over 0.12 of an output without it
+/// (stone33); with it, on the 22 samples up to 256² at 2× their side, the
+/// largest `copy_share` is 0.054 and the fidelity ratio to the block method
+/// is within 1.3 on 17 (median 1.205; 16 and 1.264 with 4 passes and 8 at
+/// the finest, unguarded). At 0.05 it held copies to 0.042 but gave 13:
+/// pieces of copy are where the output is nearest the exemplar. None
+/// elsewhere.
+pub fn default_copy_guard(n: Neighbourhood, morph: bool) -> Option<f32> {
+    match n {
+        Neighbourhood::Full(5) if !morph => Some(0.08),
         _ => None,
     }
 }

@@ -137,7 +137,9 @@ impl ExemplarLevel {
     /// the 3×3 neighbours continue ([`Bases::votes`]; 0 for one that is no
     /// base) has its distance scaled by `1 + coherence·(1 − v/9)`
     /// ([`super::driver::ParallelSettings::coherence`]), so one that breaks
-    /// the neighbours' agreement must be clearly nearer to win.
+    /// the neighbours' agreement must be clearly nearer to win. A candidate
+    /// other than `current` that `blocked` closes (the copy guard,
+    /// [`super::driver::ParallelSettings::copy_guard`]) is not taken.
     /// A candidate seen twice scores the same twice, and ties go to the
     /// smaller coordinate, so the order candidates are met in does not
     /// matter and candidates are not deduplicated.
@@ -148,12 +150,15 @@ impl ExemplarLevel {
         points: &[Vec<[i32; 2]>],
         (want, buf): (&[f32], &mut Vec<f32>),
         current: [u32; 2],
-        coherence: f32,
+        (coherence, blocked): (f32, impl Fn([u32; 2]) -> bool),
     ) -> [u32; 2] {
         let mut best = (f32::INFINITY, current);
         for base in bases.list() {
             let at = (base[1] as usize * self.width + base[0] as usize) * k;
             for &q in &table[at..at + k] {
+                if q != current && blocked(q) {
+                    continue;
+                }
                 let f = if coherence > 0.0 {
                     1.0 + coherence * (1.0 - f32::from(bases.votes(q)) / 9.0)
                 } else {
@@ -170,6 +175,16 @@ impl ExemplarLevel {
             }
         }
         best.1
+    }
+
+    /// The offset of coordinate `q` at level pixel `(x, y)`: `q − h·(x, y)`
+    /// modulo the exemplar, the same for every pixel of one coherent copy.
+    pub(super) fn offset(&self, q: [u32; 2], (x, y): (i64, i64)) -> [u32; 2] {
+        let (w, h) = (self.width as i64, self.height as i64);
+        [
+            (i64::from(q[0]) - self.h * x).rem_euclid(w) as u32,
+            (i64::from(q[1]) - self.h * y).rem_euclid(h) as u32,
+        ]
     }
 
     /// The neighbourhood vector of `q`: from the table, or computed into

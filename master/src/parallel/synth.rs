@@ -97,6 +97,7 @@ pub fn morph(
         start: s.start,
         histogram: s.histogram,
         coherence: s.coherence,
+        copy_guard: s.copy_guard,
         maps: vec![None; exemplars.len()],
         level: None,
         blend: Vec::new(),
@@ -261,6 +262,8 @@ struct Plane<'a> {
     histogram: f32,
     /// Coherence weight of the correction's choice.
     coherence: f32,
+    /// The copy guard's share ([`ParallelSettings::copy_guard`]).
+    copy_guard: Option<f32>,
     /// Every exemplar's coordinates of the last finished level.
     maps: Vec<Option<CoordMap>>,
     /// The level being corrected, and its weight maps.
@@ -332,6 +335,7 @@ impl Lattice for Plane<'_> {
                     matching.as_ref().map(|m| (m, strength)),
                     &mut matched,
                     self.coherence,
+                    self.copy_guard,
                 );
                 progress.advance(1);
             }
@@ -487,6 +491,36 @@ fn misfit(
     out
 }
 
+/// Per exemplar, the offsets ([`ExemplarLevel::offset`]) that more than
+/// `guard` of the level's pixels hold, sorted: no pixel may move into one
+/// of them, so no coherent copy grows past that share. None: no guard.
+fn crowded_offsets(lv: &Levels, ex: &[ExemplarLevel], guard: Option<f32>) -> Vec<Vec<[u32; 2]>> {
+    let Some(share) = guard else {
+        return vec![Vec::new(); ex.len()];
+    };
+    let n = lv.width * lv.height;
+    let limit = (f64::from(share) * n as f64) as usize;
+    ex.iter()
+        .enumerate()
+        .map(|(e, exl)| {
+            let mut counts = std::collections::HashMap::<[u32; 2], usize>::new();
+            for i in 0..n {
+                let at = ((i % lv.width) as i64, (i / lv.width) as i64);
+                *counts
+                    .entry(exl.offset(lv.coords[i * lv.m + e], at))
+                    .or_default() += 1;
+            }
+            let mut crowded: Vec<[u32; 2]> = counts
+                .into_iter()
+                .filter(|&(_, c)| c > limit)
+                .map(|(o, _)| o)
+                .collect();
+            crowded.sort_unstable();
+            crowded
+        })
+        .collect()
+}
+
 /// One correction sub-pass (eq. 2 and 3): the pixels with
 /// `(x % 2, y % 2) == sub` take, in every exemplar's level, the k-coherence
 /// candidate whose neighbourhood best matches the blended neighbourhood
@@ -506,6 +540,7 @@ fn correct(
     matching: Option<(&Matching, f32)>,
     matched: &mut Vec<f32>,
     coherence: f32,
+    guard: Option<f32>,
 ) -> Levels {
     blend_appearance(lv, weights, ex, blend);
     let blend: &[f32] = match matching {
@@ -518,6 +553,7 @@ fn correct(
     let (width, height, m) = (lv.width, lv.height, lv.m);
     let dims = ex[0].dims;
     let (w, hh) = (width as i64, height as i64);
+    let crowded = crowded_offsets(lv, ex, guard);
     let mut out = lv.coords.clone();
     out.par_chunks_mut(width * m)
         .enumerate()
@@ -543,7 +579,9 @@ fn correct(
                             points,
                             (want, buf),
                             lv.coords[i * m + e],
-                            coherence,
+                            (coherence, |q| {
+                                crowded[e].binary_search(&exl.offset(q, (x, y))).is_ok()
+                            }),
                         );
                     }
                 }
@@ -692,6 +730,36 @@ mod tests {
         assert!(
             paper > 0.5,
             "correcting every level no longer copies ({paper:.3}): the test lost its planted case"
+        );
+    }
+
+    /// The copy guard holds a copy to its share: the planted case above
+    /// (every level corrected, a tiled copy over more than half the output)
+    /// keeps no offset on more than a little over a tenth with a guard of
+    /// 0.1, and the guard changes nothing where no offset reaches it.
+    #[test]
+    fn the_copy_guard_stops_a_copy_growing_past_its_share() {
+        let ex = texture("walnut_color_128.png");
+        let run = |guard| {
+            let out = seven(&ex, 256, |s| {
+                s.every_level = true;
+                s.copy_guard = guard;
+            });
+            largest_offset_share(&out.coords[0], (ex.width, ex.height))
+        };
+        let open = run(None);
+        assert!(open > 0.5, "no planted copy ({open:.3})");
+        let guarded = run(Some(0.1));
+        assert!(
+            guarded <= 0.12,
+            "one offset holds {guarded:.3} under a 0.1 guard"
+        );
+        let free = seven(&ex, 256, |_| {});
+        let loose = seven(&ex, 256, |s| s.copy_guard = Some(0.9));
+        assert!(free.coords[0].get(17, 5) == loose.coords[0].get(17, 5));
+        assert!(
+            free.image == loose.image,
+            "a guard no offset reaches changed the output"
         );
     }
 

@@ -382,7 +382,7 @@ impl Level<'_> {
             self.points2,
             (want, buf),
             coords[i * self.m + j],
-            self.coherence,
+            (self.coherence, |_| false),
         )
     }
 }
