@@ -1554,9 +1554,16 @@ fn parallel_seven_defaults_to_eight_candidates_and_five_passes() {
     let reduced = run("reduced", &[]);
     assert!(reduced == run("reduced4", &["--k", "4"]));
     assert!(reduced != run("reduced8", &["--k", "8"]));
-    // reduced takes 8 passes at its finest level too.
-    assert!(reduced == run("reduced-spelled", &["--passes", "4", "--fine-passes", "8"]));
+    // reduced takes 8 passes at its finest level, a lighter fine jitter
+    // and the copy guard.
+    let spelled = [
+        &["--passes", "4", "--fine-passes", "8"][..],
+        &["--jitter", "1,0.8,0.5,0.3", "--copy-guard", "0.08"],
+    ]
+    .concat();
+    assert!(reduced == run("reduced-spelled", &spelled));
     assert!(reduced != run("reduced-flat", &["--passes", "4"]));
+    assert!(reduced != run("reduced-jitter", &["--jitter", "1,0.8,0.6,0.4"]));
     synth_refused(
         dir.path(),
         &sample,

@@ -173,8 +173,8 @@ pub struct SynthArgs {
     #[arg(long, value_enum, default_value_t = MethodArg::Grow)]
     pub method: MethodArg,
     /// --method parallel: jitter strength r in [0, 1], or one per level,
-    /// coarsest first (r1,r2,...; default 1,0.8,0.6,0.4, and 1,0.8,0.7,0.6
-    /// for --neighbourhood 5).
+    /// coarsest first (r1,r2,...; default 1,0.8,0.6,0.4, 1,0.8,0.7,0.6 for
+    /// --neighbourhood 5 and 1,0.8,0.5,0.3 for reduced).
     #[arg(long)]
     pub jitter: Option<String>,
     /// --method parallel: the coarsest level's start, random (default) or
@@ -196,7 +196,8 @@ pub struct SynthArgs {
     pub fine_passes: Option<usize>,
     /// --method parallel: copy guard, the largest share of the output one
     /// offset from the sample may grow to (0 < share < 1; 0: off; default
-    /// 0.08 for --neighbourhood 5, off for the others).
+    /// 0.08 for --neighbourhood 5 and reduced, off for
+    /// the others).
     #[arg(long)]
     pub copy_guard: Option<f32>,
     /// --method parallel: k of the k-coherence candidate sets (1 to 16;

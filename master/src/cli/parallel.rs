@@ -65,8 +65,8 @@ pub struct ParallelArgs {
     #[arg(long, alias = "neighborhood", default_value = "reduced")]
     pub neighbourhood: String,
     /// Jitter strength r in [0, 1], or one per level, coarsest first
-    /// (r1,r2,...; the last repeats). Default 1,0.8,0.6,0.4, and
-    /// 1,0.8,0.7,0.6 for the 5 neighbourhood. The paper's is 0.4 everywhere.
+    /// (r1,r2,...; the last repeats). Default 1,0.8,0.6,0.4, 1,0.8,0.7,0.6
+    /// for the 5 neighbourhood and 1,0.8,0.5,0.3 for reduced in `synth`. The paper's is 0.4 everywhere.
     #[arg(long)]
     pub jitter: Option<String>,
     /// The coarsest level's start: random (every offset alike) or tiled
@@ -90,7 +90,8 @@ pub struct ParallelArgs {
     /// Copy guard: no pixel moves to an offset from the exemplar that more
     /// than this share of the level already holds, so no copy of the
     /// exemplar grows past it (0 < share < 1; 0: off, the paper's; default
-    /// 0.08 for the 5 neighbourhood in `synth`, off for the others).
+    /// 0.08 for the 5 and reduced neighbourhoods in `synth`, off for the
+    /// others).
     #[arg(long)]
     pub copy_guard: Option<f32>,
     /// k of the k-coherence candidate sets (1 to 16): each pixel compares

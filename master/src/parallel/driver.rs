@@ -96,7 +96,7 @@ impl ParallelSettings {
             fine_passes: default_fine_passes(n, morph),
             coherence: default_coherence(n),
             copy_guard: default_copy_guard(n, morph),
-            jitter: default_jitter(n).to_vec(),
+            jitter: default_jitter(n, morph).to_vec(),
             k: default_k(n),
             ..Self::default()
         }
@@ -146,10 +146,15 @@ pub const DEFAULT_JITTER: [f64; 4] = [1.0, 0.8, 0.6, 0.4];
 /// (0.7, then 0.6), which its fourth correction pass needs: with 4 passes
 /// and the default jitter one offset grew over 0.108 of `cracked_color_144`
 /// at 2× its side; with this one the largest on the 22 samples up to 256²
-/// is 0.078.
-pub fn default_jitter(n: Neighbourhood) -> &'static [f64] {
+/// is 0.078. For `reduced` in a synthesis a lighter one at the fine levels
+/// (0.5, then 0.3) under [`default_copy_guard`]: on the same samples its
+/// fidelity ratio to the block method came within 1.3 on 7 (5 with the
+/// default; unguarded also 7, but one offset over 0.115 of an output),
+/// largest `copy_share` 0.069.
+pub fn default_jitter(n: Neighbourhood, morph: bool) -> &'static [f64] {
     match n {
         Neighbourhood::Full(5) => &[1.0, 0.8, 0.7, 0.6],
+        Neighbourhood::Reduced if !morph => &[1.0, 0.8, 0.5, 0.3],
         _ => &DEFAULT_JITTER,
     }
 }
@@ -202,17 +207,18 @@ pub fn default_fine_passes(n: Neighbourhood, morph: bool) -> Option<usize> {
 }
 
 /// The copy guard ([`ParallelSettings::copy_guard`]) the command line gives
-/// `n` unless told otherwise: 0.08 for 5×5 in a synthesis, whose 7 passes
-/// ([`default_passes`]) grow one offset over 0.12 of an output without it
-/// (stone33); with it, on the 22 samples up to 256² at 2× their side, the
-/// largest `copy_share` is 0.054 and the fidelity ratio to the block method
-/// is within 1.3 on 17 (median 1.205; 16 and 1.264 with 4 passes and 8 at
-/// the finest, unguarded). At 0.05 it held copies to 0.042 but gave 13:
-/// pieces of copy are where the output is nearest the exemplar. None
-/// elsewhere.
+/// `n` unless told otherwise: 0.08 for 5×5 and `reduced` in a synthesis.
+/// 5×5's 7 passes ([`default_passes`]) grow one offset over 0.12 of an
+/// output without it (stone33); with it, on the 22 samples up to 256² at
+/// 2× their side, the largest `copy_share` is 0.054 and the fidelity ratio
+/// to the block method is within 1.3 on 17 (median 1.205; 16 and 1.264 with
+/// 4 passes and 8 at the finest, unguarded; 16 with a guard of 0.09). At
+/// 0.05 it held copies to 0.042 but gave 13: pieces of copy are where the
+/// output is nearest the exemplar. `reduced` takes it with its lighter
+/// jitter ([`default_jitter`]). None elsewhere.
 pub fn default_copy_guard(n: Neighbourhood, morph: bool) -> Option<f32> {
     match n {
-        Neighbourhood::Full(5) if !morph => Some(0.08),
+        Neighbourhood::Full(5) | Neighbourhood::Reduced if !morph => Some(0.08),
         _ => None,
     }
 }
