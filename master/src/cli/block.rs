@@ -233,34 +233,21 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
     if matches!(a.method, MethodArg::Parallel) {
         return run_parallel(a);
     }
-    ensure!(a.jitter.is_none(), "--jitter belongs to --method parallel");
-    ensure!(a.start.is_none(), "--start belongs to --method parallel");
-    ensure!(
-        !a.correct_every_level,
-        "--correct-every-level belongs to --method parallel"
-    );
-    ensure!(
-        a.histogram.is_none(),
-        "--histogram belongs to --method parallel"
-    );
-    ensure!(a.passes.is_none(), "--passes belongs to --method parallel");
-    ensure!(
-        a.fine_passes.is_none(),
-        "--fine-passes belongs to --method parallel"
-    );
-    ensure!(
-        a.copy_guard.is_none(),
-        "--copy-guard belongs to --method parallel"
-    );
-    ensure!(a.k.is_none(), "--k belongs to --method parallel");
-    ensure!(
-        a.coherence.is_none(),
-        "--coherence belongs to --method parallel"
-    );
-    ensure!(
-        a.candidate_cache.is_none(),
-        "--candidate-cache belongs to --method parallel"
-    );
+    let parallel_flags = [
+        ("--jitter", a.jitter.is_some()),
+        ("--start", a.start.is_some()),
+        ("--correct-every-level", a.correct_every_level),
+        ("--histogram", a.histogram.is_some()),
+        ("--passes", a.passes.is_some()),
+        ("--fine-passes", a.fine_passes.is_some()),
+        ("--copy-guard", a.copy_guard.is_some()),
+        ("--k", a.k.is_some()),
+        ("--coherence", a.coherence.is_some()),
+        ("--candidate-cache", a.candidate_cache.is_some()),
+    ];
+    if let Some((flag, _)) = parallel_flags.iter().find(|(_, given)| *given) {
+        anyhow::bail!("{flag} belongs to --method parallel");
+    }
     // `synth`'s own stitching default is path, and growth stitched by path
     // matches N = 13 windows, whose stitching band is a pixel wider
     // (ARCHITECTURE §3.12).
