@@ -580,7 +580,9 @@ fn correct(
                             (want, buf),
                             lv.coords[i * m + e],
                             (coherence, |q| {
-                                crowded[e].binary_search(&exl.offset(q, (x, y))).is_ok()
+                                // Most levels close nothing: no offset to take.
+                                !crowded[e].is_empty()
+                                    && crowded[e].binary_search(&exl.offset(q, (x, y))).is_ok()
                             }),
                         );
                     }
