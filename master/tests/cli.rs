@@ -1505,7 +1505,7 @@ fn synth_refused(dir: &Path, sample: &Path, cases: &[(&[&str], &str)]) {
 }
 
 #[test]
-fn parallel_five_takes_seven_guarded_passes_and_the_finest_level_its_own() {
+fn parallel_five_takes_nine_guarded_passes_and_the_finest_level_its_own() {
     let dir = tempfile::tempdir().unwrap();
     let sample = assets().join("brick_color_96.png");
     let run = |name: &str, extra: &[&str]| {
@@ -1513,7 +1513,7 @@ fn parallel_five_takes_seven_guarded_passes_and_the_finest_level_its_own() {
         parallel_synth(dir.path(), &sample, name, &five)
     };
     let five = run("five", &[]);
-    let spelled = ["--passes", "7", "--copy-guard", "0.08"];
+    let spelled = ["--passes", "9", "--copy-guard", "0.08"];
     assert!(five == run("spelled", &spelled));
     assert!(five != run("before", &["--passes", "4"]));
     // --passes alone sets every level, the finest included (the paper's 2
@@ -1542,7 +1542,7 @@ fn parallel_five_takes_seven_guarded_passes_and_the_finest_level_its_own() {
 }
 
 #[test]
-fn parallel_seven_defaults_to_eight_candidates_and_five_passes() {
+fn parallel_seven_defaults_to_eight_candidates_and_five_passes_and_half_to_reduced_s_recipe() {
     let dir = tempfile::tempdir().unwrap();
     let sample = assets().join("brick_color_96.png");
     let run = |name: &str, extra: &[&str]| parallel_synth(dir.path(), &sample, name, extra);
@@ -1564,6 +1564,12 @@ fn parallel_seven_defaults_to_eight_candidates_and_five_passes() {
     assert!(reduced == run("reduced-spelled", &spelled));
     assert!(reduced != run("reduced-flat", &["--passes", "4"]));
     assert!(reduced != run("reduced-jitter", &["--jitter", "1,0.8,0.6,0.4"]));
+    // So does half.
+    let half = ["--neighbourhood", "half"];
+    let half_default = run("half", &half);
+    assert!(half_default == run("half-spelled", &[&half[..], &spelled].concat()));
+    assert!(half_default != run("half-flat", &[&half[..], &["--passes", "4"]].concat()));
+    assert!(half_default != reduced);
     synth_refused(
         dir.path(),
         &sample,

@@ -44,8 +44,9 @@ fn a_morph_of_one_exemplar_under_weight_one_is_the_parallel_synthesis() {
     let dir = tempfile::tempdir().unwrap();
     let d = |f: &str| dir.path().join(f);
     let sample = common::assets().join("pink_marble_color_128.png");
-    // The same passes for both: `morph` keeps the paper's 2 by default where
-    // `synth` takes 4 for `half`.
+    // The same passes and no copy guard for both: `morph` keeps the paper's
+    // 2 passes and no guard by default where `synth` gives `half` 4 passes,
+    // 8 at the finest level and a guard.
     let settings = [
         "--neighbourhood",
         "half",
@@ -55,6 +56,10 @@ fn a_morph_of_one_exemplar_under_weight_one_is_the_parallel_synthesis() {
         "9",
         "--passes",
         "3",
+        "--fine-passes",
+        "3",
+        "--copy-guard",
+        "0",
     ];
     let synth = [
         "synth",

@@ -60,12 +60,15 @@ fn faces(v: &Volume) -> Vec<(String, ColorImage)> {
 }
 
 /// How a face fails to look like the exemplar, if it does: its mean within
-/// 0.6 of the exemplar's standard deviation per channel, its standard
+/// 0.7 of the exemplar's standard deviation per channel (one 64² slice of
+/// the veined marble crosses one vein more or less: over the 64 z slices
+/// of the 64³ solid the green mean spans ±0.6 σ round the exemplar's), its
+/// standard
 /// deviation between 0.4 and 1.5 of the exemplar's, and S_F at least 0.36.
 fn unlike(face: &ColorImage, ex: &ColorImage) -> Option<String> {
     let ((fm, fs), (em, es)) = (stats(face), stats(ex));
     for c in 0..3 {
-        if (fm[c] - em[c]).abs() > 0.6 * es[c] {
+        if (fm[c] - em[c]).abs() > 0.7 * es[c] {
             return Some(format!("mean {fm:.1?} against {em:.1?}"));
         }
         if !(0.4 * es[c]..=1.5 * es[c]).contains(&fs[c]) {
@@ -88,6 +91,23 @@ fn one_isotropic_exemplar_on_all_axes_gives_faces_like_it_on_all_six_and_the_cen
         if let Some(why) = unlike(&face, &ex) {
             panic!("{name} is unlike the exemplar: {why}");
         }
+    }
+    // The solid as a whole keeps the exemplar's mean, to a tenth of its
+    // standard deviation, however its single slices scatter.
+    let (em, es) = stats(&ex);
+    let n = v.size[Axis::Z.index()];
+    let mut vm = [0.0; 3];
+    for z in 0..n {
+        let (m, _) = stats(&v.slice_rgb(Axis::Z, z));
+        for c in 0..3 {
+            vm[c] += m[c] / n as f64;
+        }
+    }
+    for c in 0..3 {
+        assert!(
+            (vm[c] - em[c]).abs() <= 0.1 * es[c],
+            "{vm:.1?} against {em:.1?}"
+        );
     }
     // The check can fail: leaves' faces, a flat face and a washed-out one
     // (the marble's contrast divided by four) are all told apart.

@@ -187,16 +187,16 @@ pub struct SynthArgs {
     #[arg(long)]
     pub correct_every_level: bool,
     /// --method parallel: correction passes per level (1 to 64; default 5
-    /// for --neighbourhood 7, 7 for 5, 4 for the others; the paper's is 2).
+    /// for --neighbourhood 7, 9 for 5, 4 for the others; the paper's is 2).
     #[arg(long)]
     pub passes: Option<usize>,
     /// --method parallel: correction passes of the finest level (1 to 64;
-    /// default 8 for reduced, else as --passes).
+    /// default 8 for reduced and half, else as --passes).
     #[arg(long)]
     pub fine_passes: Option<usize>,
     /// --method parallel: copy guard, the largest share of the output one
     /// offset from the sample may grow to (0 < share < 1; 0: off; default
-    /// 0.08 for --neighbourhood 5 and reduced, off for
+    /// 0.08 for --neighbourhood 5, reduced and half, off for
     /// the others).
     #[arg(long)]
     pub copy_guard: Option<f32>,

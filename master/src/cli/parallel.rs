@@ -66,7 +66,7 @@ pub struct ParallelArgs {
     pub neighbourhood: String,
     /// Jitter strength r in [0, 1], or one per level, coarsest first
     /// (r1,r2,...; the last repeats). Default 1,0.8,0.6,0.4, 1,0.8,0.7,0.6
-    /// for the 5 neighbourhood and 1,0.8,0.5,0.3 for reduced in `synth`. The paper's is 0.4 everywhere.
+    /// for the 5 neighbourhood and 1,0.8,0.5,0.3 for reduced and half in `synth`. The paper's is 0.4 everywhere.
     #[arg(long)]
     pub jitter: Option<String>,
     /// The coarsest level's start: random (every offset alike) or tiled
@@ -77,12 +77,12 @@ pub struct ParallelArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Correction passes per level, each of four sub-passes (1 to 64;
-    /// default 7 for the 5 neighbourhood and 5 for 7; for reduced and half 4 in
+    /// default 9 for the 5 neighbourhood in `synth` (4 in `morph`) and 5 for 7; for reduced and half 4 in
     /// `synth` and the paper's 2 in `morph`).
     #[arg(long)]
     pub passes: Option<usize>,
     /// Correction passes of the finest level (1 to 64; default 8 for the
-    /// reduced neighbourhood in `synth`, else as --passes): the finest level refines
+    /// reduced and half neighbourhoods in `synth`, else as --passes): the finest level refines
     /// a layout the coarser ones decided, so more passes there sharpen
     /// without copying the sample.
     #[arg(long)]
@@ -90,7 +90,7 @@ pub struct ParallelArgs {
     /// Copy guard: no pixel moves to an offset from the exemplar that more
     /// than this share of the level already holds, so no copy of the
     /// exemplar grows past it (0 < share < 1; 0: off, the paper's; default
-    /// 0.08 for the 5 and reduced neighbourhoods in `synth`, off for the
+    /// 0.08 for the 5, reduced and half neighbourhoods in `synth`, off for the
     /// others).
     #[arg(long)]
     pub copy_guard: Option<f32>,

@@ -150,11 +150,13 @@ pub const DEFAULT_JITTER: [f64; 4] = [1.0, 0.8, 0.6, 0.4];
 /// (0.5, then 0.3) under [`default_copy_guard`]: on the same samples its
 /// fidelity ratio to the block method came within 1.3 on 7 (5 with the
 /// default; unguarded also 7, but one offset over 0.115 of an output),
-/// largest `copy_share` 0.069.
+/// largest `copy_share` 0.069. `half` takes the same in a synthesis (with
+/// its 3×3 centre: 10 of 22, from 8 with the default jitter, 4 passes and
+/// no guard; 1 with the earlier one-pixel centre).
 pub fn default_jitter(n: Neighbourhood, morph: bool) -> &'static [f64] {
     match n {
         Neighbourhood::Full(5) => &[1.0, 0.8, 0.7, 0.6],
-        Neighbourhood::Reduced if !morph => &[1.0, 0.8, 0.5, 0.3],
+        Neighbourhood::Reduced | Neighbourhood::Half if !morph => &[1.0, 0.8, 0.5, 0.3],
         _ => &DEFAULT_JITTER,
     }
 }
@@ -174,7 +176,9 @@ pub const DEFAULT_HISTOGRAM: f32 = 1.0;
 /// block method of 2026-12-03, on the 22 samples up to 256² at 2× their
 /// side its fidelity ratio was within 1.3 on 12 with 4 passes, 14 with 5,
 /// and unguarded 17 with 7 but one offset over 0.12 of an output; guarded,
-/// 17 with 7 or 8 (largest `copy_share` 0.054, 0.057); 4 in a morph. For `reduced` and `half`, with their coherence
+/// 17 with 7 or 8 (largest `copy_share` 0.054, 0.057), 18 with 9 (median
+/// ratio 1.178, 0.053; 10 gave 17, 12 gave 18 with S_L on 19); 4 in a
+/// morph. For `reduced` and `half`, with their coherence
 /// weight ([`default_coherence`]), 4 in a synthesis: on the 22 samples up
 /// to 256² at 2× their side the median fidelity ratio
 /// to the block method fell from 1.50 (2 passes) to 1.37 (`reduced`); a
@@ -183,7 +187,7 @@ pub const DEFAULT_HISTOGRAM: f32 = 1.0;
 pub fn default_passes(n: Neighbourhood, morph: bool) -> usize {
     match n {
         Neighbourhood::Full(7) => 5,
-        Neighbourhood::Full(5) if !morph => 7,
+        Neighbourhood::Full(5) if !morph => 9,
         Neighbourhood::Full(_) => 4,
         Neighbourhood::Reduced | Neighbourhood::Half if morph => 2,
         Neighbourhood::Reduced | Neighbourhood::Half => 4,
@@ -192,33 +196,40 @@ pub fn default_passes(n: Neighbourhood, morph: bool) -> usize {
 
 /// The finest level's correction passes that the command line gives `n`
 /// in a synthesis unless told otherwise ([`ParallelSettings::fine_passes`]):
-/// 8 for `reduced`, none (as the other levels) elsewhere. On the 22 samples
+/// 8 for `reduced` and `half`, none (as the other levels) elsewhere. On the 22 samples
 /// up to 256² at 2× their side `reduced`'s fidelity ratio to the block
 /// method came within 1.3 on 5 (3 with 4 passes everywhere; 12 gained
 /// nothing more), largest `copy_share` 0.080; `half` stayed at 1. For 5×5
 /// 8 at the finest and 4 elsewhere took it from 12 to 16 (copy up to
 /// 0.085), but 7 everywhere under [`default_copy_guard`] to 17 (0.054).
-/// A morph keeps its passes.
+/// `half` (with its 3×3 centre) takes `reduced`'s finest passes, guard and
+/// jitter: 10 of 22, largest `copy_share` 0.067 (8 with 4 passes, the
+/// default jitter and no guard, `copy_share` up to 0.117). A morph keeps
+/// its passes.
 pub fn default_fine_passes(n: Neighbourhood, morph: bool) -> Option<usize> {
     match n {
-        Neighbourhood::Reduced if !morph => Some(8),
+        Neighbourhood::Reduced | Neighbourhood::Half if !morph => Some(8),
         _ => None,
     }
 }
 
 /// The copy guard ([`ParallelSettings::copy_guard`]) the command line gives
-/// `n` unless told otherwise: 0.08 for 5×5 and `reduced` in a synthesis.
-/// 5×5's 7 passes ([`default_passes`]) grow one offset over 0.12 of an
-/// output without it (stone33); with it, on the 22 samples up to 256² at
-/// 2× their side, the largest `copy_share` is 0.054 and the fidelity ratio
-/// to the block method is within 1.3 on 17 (median 1.205; 16 and 1.264 with
+/// `n` unless told otherwise: 0.08 for 5×5, `reduced` and `half` in a
+/// synthesis.
+/// 5×5's 7 to 9 passes ([`default_passes`]) grow one offset over 0.12 of an
+/// output without it (stone33); with it and 7 passes, on the 22 samples up
+/// to 256² at 2× their side, the largest `copy_share` is 0.054 and the
+/// fidelity ratio to the block method is within 1.3 on 17 (median 1.205;
+/// with 9, 18, 1.178 and 0.053; 16 and 1.264 with
 /// 4 passes and 8 at the finest, unguarded; 16 with a guard of 0.09). At
 /// 0.05 it held copies to 0.042 but gave 13: pieces of copy are where the
-/// output is nearest the exemplar. `reduced` takes it with its lighter
-/// jitter ([`default_jitter`]). None elsewhere.
+/// output is nearest the exemplar. `reduced` and `half` take it with their
+/// lighter jitter ([`default_jitter`]). None elsewhere.
 pub fn default_copy_guard(n: Neighbourhood, morph: bool) -> Option<f32> {
     match n {
-        Neighbourhood::Full(5) | Neighbourhood::Reduced if !morph => Some(0.08),
+        Neighbourhood::Full(5) | Neighbourhood::Reduced | Neighbourhood::Half if !morph => {
+            Some(0.08)
+        }
         _ => None,
     }
 }
