@@ -11,6 +11,7 @@ use argmin::solver::neldermead::NelderMead;
 use rayon::prelude::*;
 
 use super::objective::{evaluate, Eval, Problem, Target};
+use super::search::{structure_term, STRUCTURE_WEIGHT};
 use super::shaders::{Kind, Layout, Shader};
 
 /// Nelder–Mead (argmin) on `problem` from the unit-box point `x0`: the
@@ -100,6 +101,9 @@ pub(super) struct Effort {
     /// per count, so a count compared with them kept looks best near where
     /// it already is.
     pub scatter_refine: Option<u64>,
+    /// Whether a scattered count is ranked by the objective plus the
+    /// structure term (as shaders are ranked against each other).
+    pub scatter_structure: bool,
 }
 
 impl Effort {
@@ -110,6 +114,7 @@ impl Effort {
         alternatives: 2,
         count_window: None,
         scatter_refine: None,
+        scatter_structure: false,
     };
     /// Several shaders searched: counts and angles come seeded from the
     /// target's periods, so the sweeps are coarse and one new whole number
@@ -120,6 +125,7 @@ impl Effort {
         alternatives: 1,
         count_window: Some(0.15),
         scatter_refine: Some(20),
+        scatter_structure: true,
     };
 }
 
@@ -243,6 +249,15 @@ pub(super) fn refine_with_integers(
                 .map(|v| v as f64)
                 .filter(|&v| v != here && near(v))
                 .collect();
+            // A scattered count is compared by the objective plus the
+            // structure term, as shaders are: the objective is flat across
+            // counts, how the features break into pieces is not.
+            let rank = |e: &Eval| match scattered {
+                Some(_) if effort.scatter_structure => {
+                    e.objective + STRUCTURE_WEIGHT * structure_term(shader, &e.params, target)
+                }
+                _ => e.objective,
+            };
             let scored: Vec<(f64, f64, Vec<f64>, u64)> = values
                 .par_iter()
                 .map(|&v| {
@@ -251,7 +266,7 @@ pub(super) fn refine_with_integers(
                     Ok(match scattered {
                         Some(r) => {
                             let (e, n) = refine(shader, &p, r, target, evals)?;
-                            (e.objective, v, e.params, n)
+                            (rank(&e), v, e.params, n)
                         }
                         None => {
                             evals.fetch_add(1, Ordering::Relaxed);
@@ -268,7 +283,7 @@ pub(super) fn refine_with_integers(
                 let (e, n) =
                     sweep_and_refine(shader, p, max_iters.div_ceil(2), effort, target, evals)?;
                 iters += n;
-                if e.objective < best.objective - 1e-9 {
+                if rank(&e) < rank(&best) - 1e-9 {
                     best = e;
                     improved = true;
                 }

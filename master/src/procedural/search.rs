@@ -176,7 +176,7 @@ struct Start {
 
 /// Weight of the structure term where shaders are ranked against each
 /// other (the objectives are about 1 to 2, the term 0 to 1).
-const STRUCTURE_WEIGHT: f64 = 1.0;
+pub(super) const STRUCTURE_WEIGHT: f64 = 1.0;
 
 /// Weight of the pieces' separation difference in the structure term of an
 /// isotropic target (the separations differ by 0 to 1).
@@ -188,7 +188,7 @@ const SEPARATION_WEIGHT: f64 = 1.0;
 /// ([`super::pieces`]): noise and scattered features repeat alike and
 /// differ there. In lattices and parallel lines the pieces follow joint
 /// widths and gaps, not the family, so they are left out.
-fn structure_term(sh: &Shader, params: &[f64], target: &Target) -> f64 {
+pub(super) fn structure_term(sh: &Shader, params: &[f64], target: &Target) -> f64 {
     let n = target.periodicity.size;
     let field = sh.render_field(params, n, n, n);
     let render = Periodicity::of_field(&field, n);
