@@ -228,6 +228,14 @@ pub fn run_extend(a: &ExtendArgs) -> Result<()> {
     )
 }
 
+/// The first flag of `flags` (name, given) that was given.
+fn first_given<'a>(flags: &[(&'a str, bool)]) -> Option<&'a str> {
+    flags
+        .iter()
+        .find(|(_, given)| *given)
+        .map(|(flag, _)| *flag)
+}
+
 /// `texsyn synth`.
 pub fn run_synth(a: &SynthArgs) -> Result<()> {
     if matches!(a.method, MethodArg::Parallel) {
@@ -245,7 +253,7 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
         ("--coherence", a.coherence.is_some()),
         ("--candidate-cache", a.candidate_cache.is_some()),
     ];
-    if let Some((flag, _)) = parallel_flags.iter().find(|(_, given)| *given) {
+    if let Some(flag) = first_given(&parallel_flags) {
         anyhow::bail!("{flag} belongs to --method parallel");
     }
     // `synth`'s own stitching default is path, and growth stitched by path
@@ -339,7 +347,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         ("--levels-dir", c.levels_dir.is_some()),
         ("--report", c.report.is_some()),
     ];
-    if let Some((flag, _)) = block_flags.iter().find(|(_, given)| *given) {
+    if let Some(flag) = first_given(&block_flags) {
         anyhow::bail!(
             "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --fine-passes, --copy-guard, --k, --coherence, --seed, --coords and the run flags)"
         );

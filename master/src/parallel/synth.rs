@@ -503,17 +503,17 @@ fn crowded_offsets(lv: &Levels, ex: &[ExemplarLevel], guard: Option<f32>) -> Vec
     ex.iter()
         .enumerate()
         .map(|(e, exl)| {
-            let mut counts = std::collections::HashMap::<[u32; 2], usize>::new();
+            // Offsets lie in the exemplar: one counter per exemplar pixel.
+            let ew = exl.width;
+            let mut counts = vec![0usize; ew * exl.height];
             for i in 0..n {
                 let at = ((i % lv.width) as i64, (i / lv.width) as i64);
-                *counts
-                    .entry(exl.offset(lv.coords[i * lv.m + e], at))
-                    .or_default() += 1;
+                let o = exl.offset(lv.coords[i * lv.m + e], at);
+                counts[o[1] as usize * ew + o[0] as usize] += 1;
             }
-            let mut crowded: Vec<[u32; 2]> = counts
-                .into_iter()
-                .filter(|&(_, c)| c > limit)
-                .map(|(o, _)| o)
+            let mut crowded: Vec<[u32; 2]> = (0..counts.len())
+                .filter(|&j| counts[j] > limit)
+                .map(|j| [(j % ew) as u32, (j / ew) as u32])
                 .collect();
             crowded.sort_unstable();
             crowded
