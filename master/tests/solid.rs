@@ -392,6 +392,14 @@ fn bad_input_is_refused_with_the_fix_named() {
             vec!["--size", "32", "--histogram", "2"],
             "must be in [0, 1]",
         ),
+        (
+            vec!["--size", "32", "--index-histogram=-1"],
+            "--index-histogram -1 must be in [0, 16]",
+        ),
+        (
+            vec!["--size", "32", "--index-histogram", "NaN"],
+            "must be in [0, 16]",
+        ),
     ];
     for (extra, want) in cases {
         let e = refused(&[&base[..], &extra].concat());

@@ -49,6 +49,12 @@ pub struct SolidArgs {
     /// 0 to 1 (1: full; 0: the paper's plain method, which washes out).
     #[arg(long, default_value_t = solid::HISTOGRAM)]
     pub histogram: f32,
+    /// Weight of the index histogram matching: a candidate exemplar pixel
+    /// that the volume's views already take more often than an even share
+    /// has its distance scaled by 1 + W·(uses/share − 1), so rare features
+    /// (thin veins) are used as often as the exemplar holds them (0: off).
+    #[arg(long, default_value_t = solid::INDEX_HISTOGRAM, value_name = "W")]
+    pub index_histogram: f32,
     /// Morph the materials along a ramp across x, y or z: material 1 at the
     /// start, the last at the end.
     #[arg(long, conflicts_with = "weight_volumes")]
@@ -215,7 +221,10 @@ impl TryFrom<&SolidArgs> for SolidJob {
         let job = SolidJob {
             views,
             size: parse_size3(&a.size)?,
-            settings: SolidSettings { base },
+            settings: SolidSettings {
+                base,
+                index_histogram: a.index_histogram,
+            },
             weights,
             slices: parse_slices(&a.slices)?,
             replays,

@@ -137,9 +137,11 @@ impl ExemplarLevel {
     /// the 3×3 neighbours continue ([`Bases::votes`]; 0 for one that is no
     /// base) has its distance scaled by `1 + coherence·(1 − v/9)`
     /// ([`super::driver::ParallelSettings::coherence`]), so one that breaks
-    /// the neighbours' agreement must be clearly nearer to win. A candidate
-    /// other than `current` that `blocked` closes (the copy guard,
-    /// [`super::driver::ParallelSettings::copy_guard`]) is not taken.
+    /// the neighbours' agreement must be clearly nearer to win, and then by
+    /// `factor(q)` (a solid's index histogram matching; 1 elsewhere). A
+    /// candidate other than `current` whose factor is `None` (closed by the
+    /// copy guard, [`super::driver::ParallelSettings::copy_guard`]) is not
+    /// taken; `current` itself then counts at factor 1.
     /// A candidate seen twice scores the same twice, and ties go to the
     /// smaller coordinate, so the order candidates are met in does not
     /// matter and candidates are not deduplicated.
@@ -150,16 +152,16 @@ impl ExemplarLevel {
         points: &[Vec<[i32; 2]>],
         (want, buf): (&[f32], &mut Vec<f32>),
         current: [u32; 2],
-        (coherence, blocked): (f32, impl Fn([u32; 2]) -> bool),
+        (coherence, factor): (f32, impl Fn([u32; 2]) -> Option<f32>),
     ) -> [u32; 2] {
         let mut best = (f32::INFINITY, current);
         for base in bases.list() {
             let at = (base[1] as usize * self.width + base[0] as usize) * k;
             for &q in &table[at..at + k] {
-                if q != current && blocked(q) {
+                let Some(g) = factor(q).or((q == current).then_some(1.0)) else {
                     continue;
-                }
-                let f = if coherence > 0.0 {
+                };
+                let f = g * if coherence > 0.0 {
                     1.0 + coherence * (1.0 - f32::from(bases.votes(q)) / 9.0)
                 } else {
                     1.0

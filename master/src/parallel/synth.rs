@@ -581,8 +581,9 @@ fn correct(
                             lv.coords[i * m + e],
                             (coherence, |q| {
                                 // Most levels close nothing: no offset to take.
-                                !crowded[e].is_empty()
-                                    && crowded[e].binary_search(&exl.offset(q, (x, y))).is_ok()
+                                let closed = !crowded[e].is_empty()
+                                    && crowded[e].binary_search(&exl.offset(q, (x, y))).is_ok();
+                                (!closed).then_some(1.0)
                             }),
                         );
                     }

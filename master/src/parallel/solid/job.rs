@@ -78,6 +78,11 @@ impl SolidJob {
             (1..=64).contains(&passes),
             "--passes {passes} must be in 1..=64"
         );
+        let u = self.settings.index_histogram;
+        ensure!(
+            u.is_finite() && (0.0..=16.0).contains(&u),
+            "--index-histogram {u} must be in [0, 16] (0: off, every exemplar pixel as free to take as the last)"
+        );
         let k = self.settings.base.k;
         ensure!(
             (1..=crate::parallel::candidates::MAX_K).contains(&k),
@@ -270,6 +275,7 @@ impl SolidJob {
             "passes": s.base.passes,
             "k": s.base.k,
             "histogram": s.base.histogram,
+            "index_histogram": s.index_histogram,
             "seed": s.base.seed,
             "levels": out.levels,
             "appearance_components": out.dims,

@@ -3,7 +3,8 @@
 //! from §5.1, see [`initial`]), upsample by eq. 4 and are corrected in eight sub-passes (§5.3),
 //! each view against the blend's neighbourhood in its plane (eq. 5), the
 //! blend histogram-matched to the exemplars' appearance after every sub-pass
-//! ([`super::histogram`]).
+//! ([`super::histogram`]), and the choice weighted by how often the volume
+//! already uses each exemplar pixel ([`Usage`]).
 
 use rayon::prelude::*;
 
@@ -40,6 +41,8 @@ pub(super) struct Volume<'a> {
     /// Coherence weight of the correction's choice
     /// ([`crate::parallel::driver::ParallelSettings::coherence`]).
     pub coherence: f32,
+    /// Weight of the index histogram matching ([`Usage`]; 0: off).
+    pub index_histogram: f32,
     pub dims: usize,
     /// Per material, its weight at every voxel of the full size (several
     /// materials only).
@@ -130,6 +133,7 @@ impl Lattice for Volume<'_> {
             matching,
             strength: self.histogram,
             coherence: self.coherence,
+            index_histogram: self.index_histogram,
         };
         ctx.blend_all(&self.coords, &mut self.blend);
         for _ in 0..passes {
@@ -226,6 +230,81 @@ struct Level<'a> {
     matching: Option<Matching>,
     strength: f32,
     coherence: f32,
+    index_histogram: f32,
+}
+
+/// Index histogram matching (after Chen and Wang 2010, "High quality solid
+/// texture synthesis using position and index histogram matching"): how
+/// often the volume's views take each exemplar pixel, counted from the
+/// coordinates before a sub-pass. A voxel's view scales a candidate's
+/// distance by `1 + w·max(0, uses/even − 1)`, where `even` is the count if
+/// every pixel were used alike. Pixels, not the level's `h`×`h` cells (Chen
+/// and Wang count a level's own pixels): at coarse levels few voxels share
+/// many pixels, so any reuse is penalised and the coarse layout spreads
+/// over the whole exemplar; counted per cell, the slices' S_L fell about
+/// half as much (ARCHITECTURE §11). Left alone, the three
+/// views agree most easily on the exemplar's plain regions, and thin
+/// features (veins) fade from the slices; with the weight they are taken as
+/// often as the exemplar holds them. The counts are integers over the
+/// whole volume, so the choice stays independent of the threads.
+struct Usage {
+    weight: f32,
+    /// Per distinct exemplar, the uses of each pixel (row-major).
+    counts: Vec<Vec<u32>>,
+    /// Per distinct exemplar: its width and `1 / even`.
+    grid: Vec<(usize, f32)>,
+}
+
+/// Voxels per parallel chunk of the usage count.
+const USAGE_CHUNK: usize = 1 << 15;
+
+impl Usage {
+    fn count(ctx: &Level, coords: &[[u32; 2]]) -> Self {
+        let m = ctx.m;
+        let voxels = ctx.size.iter().product::<usize>();
+        let grid: Vec<(usize, f32)> = ctx
+            .ex
+            .iter()
+            .enumerate()
+            .map(|(e, ex)| {
+                let views = ctx.view_ex.iter().filter(|&&v| v == e).count();
+                let even = (voxels * views) as f32 / (ex.width * ex.height).max(1) as f32;
+                (ex.width, if even > 0.0 { 1.0 / even } else { 0.0 })
+            })
+            .collect();
+        let cells: Vec<usize> = ctx.ex.iter().map(|ex| ex.width * ex.height).collect();
+        let zero = || cells.iter().map(|&n| vec![0u32; n]).collect::<Vec<_>>();
+        let counts = coords
+            .par_chunks(USAGE_CHUNK * m)
+            .fold(zero, |mut acc, chunk| {
+                for (t, c) in chunk.iter().enumerate() {
+                    let e = ctx.view_ex[t % m];
+                    acc[e][c[1] as usize * grid[e].0 + c[0] as usize] += 1;
+                }
+                acc
+            })
+            .reduce(zero, |mut a, b| {
+                for (x, y) in a.iter_mut().zip(b) {
+                    for (p, q) in x.iter_mut().zip(y) {
+                        *p += q;
+                    }
+                }
+                a
+            });
+        Self {
+            weight: ctx.index_histogram,
+            counts,
+            grid,
+        }
+    }
+
+    /// The factor of candidate `q` of exemplar `e`.
+    #[inline]
+    fn factor(&self, e: usize, q: [u32; 2]) -> f32 {
+        let (w, inv_even) = self.grid[e];
+        let uses = self.counts[e][q[1] as usize * w + q[0] as usize] as f32;
+        1.0 + self.weight * (uses * inv_even - 1.0).max(0.0)
+    }
 }
 
 impl Level<'_> {
@@ -282,6 +361,8 @@ impl Level<'_> {
             mt.apply(blend, self.strength, matched);
         }
         let zs: Vec<usize> = (sub[2]..d).step_by(2).collect();
+        let usage = (self.index_histogram > 0.0).then(|| Usage::count(self, coords));
+        let usage = usage.as_ref();
         let updates: Vec<Vec<[u32; 2]>> = {
             let coords = &*coords;
             let gather: &[f32] = if self.matching.is_some() {
@@ -299,7 +380,7 @@ impl Level<'_> {
                                 let p = [x as i64, y as i64, z as i64];
                                 let i = (z * h + y) * w + x;
                                 for j in 0..m {
-                                    out.push(self.best(p, i, j, coords, gather, want, buf));
+                                    out.push(self.best(p, i, j, coords, gather, usage, want, buf));
                                 }
                             }
                         }
@@ -346,6 +427,7 @@ impl Level<'_> {
         j: usize,
         coords: &[[u32; 2]],
         blend: &[f32],
+        usage: Option<&Usage>,
         want: &mut Vec<f32>,
         buf: &mut Vec<f32>,
     ) -> [u32; 2] {
@@ -382,7 +464,9 @@ impl Level<'_> {
             self.points2,
             (want, buf),
             coords[i * self.m + j],
-            (self.coherence, |_| false),
+            (self.coherence, |q| {
+                Some(usage.map_or(1.0, |u| u.factor(self.view_ex[j], q)))
+            }),
         )
     }
 }
