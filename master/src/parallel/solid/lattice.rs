@@ -234,19 +234,18 @@ struct Level<'a> {
 }
 
 /// Index histogram matching (after Chen and Wang 2010, "High quality solid
-/// texture synthesis using position and index histogram matching"): how
-/// often the volume's views take each exemplar pixel, counted from the
-/// coordinates before a sub-pass. A voxel's view scales a candidate's
-/// distance by `1 + w·max(0, uses/even − 1)`, where `even` is the count if
-/// every pixel were used alike. Pixels, not the level's `h`×`h` cells (Chen
-/// and Wang count a level's own pixels): at coarse levels few voxels share
-/// many pixels, so any reuse is penalised and the coarse layout spreads
-/// over the whole exemplar; counted per cell, the slices' S_L fell about
-/// half as much (ARCHITECTURE §11). Left alone, the three
-/// views agree most easily on the exemplar's plain regions, and thin
-/// features (veins) fade from the slices; with the weight they are taken as
-/// often as the exemplar holds them. The counts are integers over the
-/// whole volume, so the choice stays independent of the threads.
+/// texture synthesis using position and index histogram matching"). Left
+/// alone, the three views agree most easily on the exemplar's plain
+/// regions, and thin features (veins) fade from the slices. So the volume's
+/// uses of each exemplar pixel are counted from the coordinates before a
+/// sub-pass, and a voxel's view scales a candidate's distance by
+/// `1 + w·max(0, uses/even − 1)`, where `even` is the count if every pixel
+/// were used alike. Pixels, not the level's `h`×`h` cells (Chen and Wang
+/// count a level's own pixels): at coarse levels few voxels share many
+/// pixels, so any reuse is penalised and the coarse layout spreads over the
+/// whole exemplar; counted per cell, the slices' S_L fell about half as
+/// much (ARCHITECTURE §11). The counts are integers over the whole volume,
+/// so the choice stays independent of the threads.
 struct Usage {
     weight: f32,
     /// Per distinct exemplar, the uses of each pixel (row-major).
@@ -272,8 +271,12 @@ impl Usage {
                 (ex.width, if even > 0.0 { 1.0 / even } else { 0.0 })
             })
             .collect();
-        let cells: Vec<usize> = ctx.ex.iter().map(|ex| ex.width * ex.height).collect();
-        let zero = || cells.iter().map(|&n| vec![0u32; n]).collect::<Vec<_>>();
+        let zero = || {
+            ctx.ex
+                .iter()
+                .map(|ex| vec![0u32; ex.width * ex.height])
+                .collect::<Vec<_>>()
+        };
         let counts = coords
             .par_chunks(USAGE_CHUNK * m)
             .fold(zero, |mut acc, chunk| {
