@@ -400,6 +400,14 @@ fn bad_input_is_refused_with_the_fix_named() {
             vec!["--size", "32", "--index-histogram", "NaN"],
             "must be in [0, 16]",
         ),
+        (
+            vec!["--size", "32", "--band-matching", "9"],
+            "--band-matching 9 must be in 0..=8",
+        ),
+        (
+            vec!["--size", "32", "--band-matching=-1"],
+            "--band-matching",
+        ),
     ];
     for (extra, want) in cases {
         let e = refused(&[&base[..], &extra].concat());

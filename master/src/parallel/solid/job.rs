@@ -83,6 +83,12 @@ impl SolidJob {
             u.is_finite() && (0.0..=16.0).contains(&u),
             "--index-histogram {u} must be in [0, 16] (0: off, every exemplar pixel as free to take as the last)"
         );
+        let b = self.settings.band_matching;
+        ensure!(
+            b <= super::MAX_BAND_MATCHING,
+            "--band-matching {b} must be in 0..={} (0: off)",
+            super::MAX_BAND_MATCHING
+        );
         let k = self.settings.base.k;
         ensure!(
             (1..=crate::parallel::candidates::MAX_K).contains(&k),
@@ -276,6 +282,7 @@ impl SolidJob {
             "k": s.base.k,
             "histogram": s.base.histogram,
             "index_histogram": s.index_histogram,
+            "band_matching": s.band_matching,
             "seed": s.base.seed,
             "levels": out.levels,
             "appearance_components": out.dims,

@@ -17,7 +17,9 @@
 //! views match its flatness. As Kopf et al. 2007 do, the solid's
 //! histograms are matched to the exemplar's: the blend's appearance
 //! components after every sub-pass, the output colour per channel at the
-//! end ([`histogram`]).
+//! end ([`histogram`]). The colour's Laplacian bands are then matched to
+//! the exemplars' as Heeger and Bergen do ([`bands`]), which gives back the
+//! crispness the blend of three views takes away.
 
 use anyhow::{bail, ensure, Result};
 
@@ -29,12 +31,14 @@ use crate::imaging::ColorImage;
 use crate::progress::Progress;
 use crate::search::SearchBackend;
 
+mod bands;
 mod job;
 mod lattice;
 #[cfg(test)]
 mod tests;
 mod weights;
 
+pub use bands::{ITERATIONS as BAND_MATCHING, MAX_ITERATIONS as MAX_BAND_MATCHING};
 pub use job::{ReplayFiles, SolidJob, SolidSummary, ViewFile, WeightFiles, MAX_EDGE};
 pub use lattice::SUB_PASSES;
 pub use weights::ViewWeights;
@@ -79,6 +83,9 @@ pub struct Solid {
     /// Strength of the colour's histogram matching (0: none, as for a
     /// morph of several materials), which [`replay`] applies too.
     pub colour_matching: f32,
+    /// Rounds of the colour's band matching ([`bands`]; 0: none), which
+    /// [`replay`] applies too, only where `colour_matching` is on.
+    pub band_matching: usize,
 }
 
 /// Bytes a solid of `size` with `views` views, `materials` materials and
@@ -271,6 +278,7 @@ pub fn synthesize(
         dims,
         explained_variance: pca.explained,
         colour_matching: if materials == 1 { s.histogram } else { 0.0 },
+        band_matching: settings.band_matching,
     };
     let exemplars: Vec<ColorImage> = views.iter().map(|v| v.exemplar.clone()).collect();
     solid.colour = replay(&solid, &exemplars, 3)?.data;
@@ -286,6 +294,8 @@ pub struct SolidSettings {
     /// Weight of the index histogram matching ([`lattice`]'s usage term;
     /// 0: off).
     pub index_histogram: f32,
+    /// Rounds of the colour's band histogram matching ([`bands`]; 0: off).
+    pub band_matching: usize,
 }
 
 /// Default weight of the index histogram matching (ARCHITECTURE §11): on
@@ -316,6 +326,7 @@ impl Default for SolidSettings {
                 ..ParallelSettings::default()
             },
             index_histogram: INDEX_HISTOGRAM,
+            band_matching: BAND_MATCHING,
         }
     }
 }
@@ -323,8 +334,9 @@ impl Default for SolidSettings {
 /// A map replayed through a solid's coordinates (§5.5): per voxel
 /// `Σ Wʲ·Mʲ(Sʲ)`, rounded, with `channels` 1 (the map's grey) or 3; `maps`
 /// holds one map per view, each its view's exemplar size. Each channel is
-/// then histogram-matched to the views' maps as the colour is (so replaying
-/// the colour exemplars gives the solid's colour).
+/// then band-matched ([`bands`]) and histogram-matched to the views' maps as
+/// the colour is (so replaying the colour exemplars gives the solid's
+/// colour).
 pub fn replay(s: &Solid, maps: &[ColorImage], channels: usize) -> Result<Volume> {
     ensure!(maps.len() == s.coords.len(), "one map per view");
     ensure!(
@@ -340,6 +352,15 @@ pub fn replay(s: &Solid, maps: &[ColorImage], channels: usize) -> Result<Volume>
         )
     });
     let mut data = data;
+    if s.colour_matching > 0.0 && s.band_matching > 0 {
+        // Every view's map with its weight (one material: evenly shared).
+        let weighted: Vec<(&ColorImage, f64)> = maps
+            .iter()
+            .enumerate()
+            .map(|(j, m)| (m, f64::from(s.weights.at(j, 0))))
+            .collect();
+        bands::match_bands(&mut data, s.size, channels, &weighted, s.band_matching);
+    }
     if s.colour_matching > 0.0 && voxels > 0 {
         for ch in 0..channels {
             // The views' maps, each with its view's weight.
