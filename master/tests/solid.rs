@@ -401,8 +401,8 @@ fn bad_input_is_refused_with_the_fix_named() {
             "must be in [0, 16]",
         ),
         (
-            vec!["--size", "32", "--band-matching", "9"],
-            "--band-matching 9 must be in 0..=8",
+            vec!["--size", "32", "--band-matching", "17"],
+            "--band-matching 17 must be in 0..=16",
         ),
         (
             vec!["--size", "32", "--band-matching=-1"],
