@@ -57,8 +57,9 @@ pub struct SolidArgs {
     pub index_histogram: f32,
     /// Rounds of band histogram matching of the colour (Heeger–Bergen): each
     /// colour component's Laplacian bands over the volume are matched to
-    /// the exemplars', which keeps thin veins and fine grain as crisp as
-    /// theirs (0: off; only with --histogram above 0 and one material).
+    /// the exemplars', after the pixel checker is filtered out, so thin
+    /// veins and fine grain come nearer the exemplars' crispness (0: off;
+    /// only with --histogram above 0 and one material).
     #[arg(long, default_value_t = solid::BAND_MATCHING, value_name = "ROUNDS")]
     pub band_matching: usize,
     /// Morph the materials along a ramp across x, y or z: material 1 at the
