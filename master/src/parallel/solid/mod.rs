@@ -18,8 +18,8 @@
 //! histograms are matched to the exemplar's: the blend's appearance
 //! components after every sub-pass, the output colour per channel at the
 //! end ([`histogram`]). The colour's Laplacian bands are then matched to
-//! the exemplars' as Heeger and Bergen do ([`bands`]), which gives back the
-//! crispness the blend of three views takes away.
+//! the exemplars' as Heeger and Bergen do ([`bands`]), which restores part
+//! of the crispness the blend of three views takes away.
 
 use anyhow::{bail, ensure, Result};
 
