@@ -285,21 +285,28 @@ fn arrangements(file: &std::path::Path, size: usize) -> Result<()> {
     let text = std::fs::read_to_string(file)
         .with_context(|| format!("cannot read the labels {}", file.display()))?;
     let dir = file.parent().unwrap_or(std::path::Path::new("."));
-    println!("photo                          want                 arrangement  orient  second  lattice  frequency");
+    println!("photo                          want                 arrangement  orient  second  lattice  frequency  separation  pieces  radial");
     for l in labels::parse(&text)? {
         let img = imaging::load_color(&dir.join(&l.file))?;
         let (per, a) = texsyn::procedural::objective::periodicity_of(
             &texsyn::procedural::analysis_image(&img, size),
         );
         println!(
-            "{:<30} {:<20} {:<11}  {:>6.2}  {:>6.2}  {:>7.2}  {:>9.1}",
+            "{:<30} {:<20} {:<11}  {:>6.2}  {:>6.2}  {:>7.2}  {:>9.1}  {:>10.2}  {:>6.1}  {:>6.1}",
             l.file,
             l.families.join("|"),
             a.arrangement.name(),
             a.orientation,
             a.second,
             a.lattice,
-            per.scale
+            per.scale,
+            per.pieces.separation,
+            per.pieces.count,
+            if per.radial.period > 0.0 {
+                per.size as f64 / per.radial.period
+            } else {
+                0.0
+            }
         );
     }
     Ok(())
