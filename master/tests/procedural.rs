@@ -660,11 +660,13 @@ fn labelled_photos_seed_their_rows_and_a_planted_label_fails() {
     let bricks = by_name("bricks").unwrap();
     let mid: Vec<f64> = bricks.params.iter().map(|p| p.from_unit(0.5)).collect();
     // The facade's fine grid (24 rows, 1-px joints) is read across its
-    // rows, not obliquely at a longer period.
+    // rows, not obliquely at a longer period; the 96-px wall's courses,
+    // not the striation within its stones.
     for name in [
         "brick_gray_256.png",
         "tiles_color_256.png",
         "facade_tiles_color_256.png",
+        "brick_color_96.png",
     ] {
         let l = list.iter().find(|l| l.file == name).unwrap();
         let img = texsyn::procedural::analysis_image(&common::texture(name), 128);

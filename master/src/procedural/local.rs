@@ -91,8 +91,9 @@ pub(super) struct Effort {
     /// New whole-number values swept and refined per parameter and round.
     pub alternatives: usize,
     /// When set, the shader's count (its layout's) only moves this share
-    /// (at least 1) from where it is: it was read from the periods, and a
-    /// harmonic may score better on the objective.
+    /// from where it is: it was read from the periods, and a harmonic may
+    /// score better on the objective (with a window of at least one, a
+    /// seeded count below 7 could drift by one).
     pub count_window: Option<f64>,
     /// When set, a scattered shader's count is tried at every value of its
     /// range, each refined by a simplex run of this many iterations before
@@ -240,9 +241,7 @@ pub(super) fn refine_with_integers(
                 _ => None,
             };
             let near = |v: f64| match effort.count_window {
-                Some(w) if scattered.is_none() && count == Some(i) => {
-                    (v - here).abs() <= (w * here).max(1.0)
-                }
+                Some(w) if scattered.is_none() && count == Some(i) => (v - here).abs() <= w * here,
                 _ => true,
             };
             let values: Vec<f64> = (spec.min as i64..=spec.max as i64)

@@ -32,6 +32,13 @@ const FIRST_PEAK_SHARE: f64 = 0.6;
 /// sine (a 24-row facade read as 20 rows at 60°).
 const ACROSS_SHARE: f64 = 0.5;
 
+/// The widest angle, in degrees, from a direction at which another
+/// direction's period still bears out its lines ([`Periodicity::support`]).
+const SUPPORT_FAN: f64 = 60.0;
+/// How far (log ratio) a direction's period may differ from the one lines
+/// across another direction predict and still bear it out.
+const SUPPORT_TOLERANCE: f64 = 0.1;
+
 /// A target whose tones' separation ([`super::pieces`]) reaches this shows
 /// scattered features: a scattered shader's count is seeded from its pieces.
 pub const SCATTERED: f64 = 0.5;
@@ -53,6 +60,11 @@ pub struct Periodicity {
     /// Per direction k, at k·180/[`DIRECTIONS`] degrees from the x axis
     /// towards y (image rows go down): the first peak.
     pub lines: Vec<Peak>,
+    /// Per direction, the first peak that [`repeats`]: the period of
+    /// courses and lines, without the broad hump of the grain within one
+    /// tile (what seeds counts; `lines` is what the structure term compares,
+    /// and scattered features' spacing is such a hump).
+    pub courses: Vec<Peak>,
     /// The first peak of the correlation averaged over all directions.
     pub radial: Peak,
     /// The features' frequency in cycles per image
@@ -108,8 +120,9 @@ impl Periodicity {
             .collect();
         Self {
             size: n,
-            lines: profiles.iter().map(|p| first_peak(p)).collect(),
-            radial: first_peak(&radial),
+            lines: profiles.iter().map(|p| first_peak(p, false)).collect(),
+            courses: profiles.iter().map(|p| first_peak(p, true)).collect(),
+            radial: first_peak(&radial, false),
             scale: super::arrangement::feature_frequency(v, n),
             pieces: super::pieces::pieces(v, n),
         }
@@ -136,23 +149,25 @@ impl Periodicity {
     /// period nearly as strong as the strongest, the one of shortest period
     /// (along any other direction the same lines repeat more slowly).
     pub fn across(&self) -> Option<(f64, Peak)> {
-        let (_, top) = self.strongest();
-        if top.strength < 2.0 * PROMINENCE {
-            return None;
-        }
-        let (k, p) = self
-            .lines
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| p.strength >= ACROSS_SHARE * top.strength)
-            .min_by(|a, b| a.1.period.total_cmp(&b.1.period).then(a.0.cmp(&b.0)))?;
-        Some((180.0 * k as f64 / DIRECTIONS as f64, *p))
+        across_of(&self.lines, |_| 0.0)
+    }
+
+    /// The direction across courses (rows of bricks, boards), read from
+    /// [`Self::courses`] for the seeds: among the directions with a period
+    /// nearly as strong as the strongest, the one whose period the most
+    /// directions bear out ([`support`]), the shortest among equals.
+    pub fn courses_across(&self) -> Option<(f64, Peak)> {
+        across_of(&self.courses, |k| support(&self.courses, k))
+    }
+
+    /// The course peak of the direction nearest `degrees`.
+    pub fn course_along(&self, degrees: f64) -> Peak {
+        self.courses[nearest(degrees)]
     }
 
     /// The peak of the direction nearest `degrees`.
     pub fn along(&self, degrees: f64) -> Peak {
-        let k = (degrees / 180.0 * DIRECTIONS as f64).round() as i64;
-        self.lines[k.rem_euclid(DIRECTIONS as i64) as usize]
+        self.lines[nearest(degrees)]
     }
 
     /// The structure term: how differently two textures repeat, direction
@@ -199,8 +214,8 @@ pub fn seeded(s: &Shader, base: &[f64], per: &Periodicity) -> Option<Vec<f64>> {
             angle,
         } => {
             let (across, v) = match angle {
-                Some(_) => per.across()?,
-                None => (90.0, per.along(90.0)),
+                Some(_) => per.courses_across()?,
+                None => (90.0, per.course_along(90.0)),
             };
             if !strong(&v) {
                 return None;
@@ -210,14 +225,14 @@ pub fn seeded(s: &Shader, base: &[f64], per: &Periodicity) -> Option<Vec<f64>> {
                 p[k] = across;
             }
             if let Some(a) = aspect {
-                let h = per.along(across + 90.0);
+                let h = per.course_along(across + 90.0);
                 if h.strength >= PROMINENCE && h.period > 0.0 {
                     p[a] = h.period / v.period;
                 }
             }
         }
         Layout::Lines { count, angle } => {
-            let (a, k) = per.across()?;
+            let (a, k) = per.courses_across()?;
             p[count] = n / k.period;
             p[angle] = a;
         }
@@ -294,8 +309,74 @@ fn autocorrelation(v: &[f64], n: usize) -> Vec<f64> {
         .collect()
 }
 
-/// The first clear peak of a correlation profile (index = lag).
-fn first_peak(p: &[f64]) -> Peak {
+/// The direction index nearest `degrees`.
+fn nearest(degrees: f64) -> usize {
+    let k = (degrees / 180.0 * DIRECTIONS as f64).round() as i64;
+    k.rem_euclid(DIRECTIONS as i64) as usize
+}
+
+/// Among the directions of `lines` whose peak is at least
+/// [`ACROSS_SHARE`] of the strongest, the one of highest `score`, then
+/// shortest period, then first; with its angle in degrees.
+fn across_of(lines: &[Peak], score: impl Fn(usize) -> f64) -> Option<(f64, Peak)> {
+    let top = lines.iter().map(|p| p.strength).fold(0.0, f64::max);
+    if top < 2.0 * PROMINENCE {
+        return None;
+    }
+    let (k, p, _) = lines
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| p.strength >= ACROSS_SHARE * top)
+        .map(|(k, p)| (k, p, score(k)))
+        .max_by(|a, b| {
+            a.2.total_cmp(&b.2)
+                .then(b.1.period.total_cmp(&a.1.period))
+                .then(b.0.cmp(&a.0))
+        })?;
+    Some((180.0 * k as f64 / lines.len() as f64, *p))
+}
+
+/// How many directions bear out direction `k`'s period as lines across
+/// it, weighted by their strength: lines of period P across direction k
+/// cross a direction δ away every P / cos δ. Courses of bricks hold over
+/// a wide fan of directions; the grain within one brick, a few.
+fn support(lines: &[Peak], k: usize) -> f64 {
+    let pk = lines[k].period;
+    if pk <= 0.0 {
+        return 0.0;
+    }
+    let n = lines.len();
+    let step = 180.0 / n as f64;
+    lines
+        .iter()
+        .enumerate()
+        .filter(|(j, q)| {
+            let d = (*j as i64 - k as i64).rem_euclid(n as i64) as usize;
+            let delta = d.min(n - d) as f64 * step;
+            q.period > 0.0
+                && delta <= SUPPORT_FAN
+                && (q.period * delta.to_radians().cos() / pk).ln().abs() <= SUPPORT_TOLERANCE
+        })
+        .map(|(_, q)| q.strength)
+        .sum()
+}
+
+/// Whether the peak at lag `r` repeats: where twice the lag is in reach,
+/// the correlation there (±1) rises above the one at one and a half times
+/// it. A period's second repeat comes back; the broad hump of a texture's
+/// grain within its tiles (the striation of a stone brick) only decays.
+fn repeats(p: &[f64], r: usize) -> bool {
+    let twice = 2 * r;
+    if twice + 1 >= p.len() {
+        return true;
+    }
+    let back = p[twice - 1].max(p[twice]).max(p[twice + 1]);
+    back > p[(3 * r).div_ceil(2)]
+}
+
+/// The first clear peak of a correlation profile (index = lag); with
+/// `repeating`, the first that [`repeats`].
+fn first_peak(p: &[f64], repeating: bool) -> Peak {
     let none = Peak {
         period: 0.0,
         strength: 0.0,
@@ -310,7 +391,7 @@ fn first_peak(p: &[f64]) -> Peak {
         low = low.min(p[r]);
         if r >= start && p[r] >= p[r - 1] && p[r] > p[r + 1] {
             let rise = p[r] - low;
-            if rise >= PROMINENCE && p[r] > 0.0 {
+            if rise >= PROMINENCE && p[r] > 0.0 && (!repeating || repeats(p, r)) {
                 peaks.push((r, rise));
             }
         }
@@ -415,6 +496,63 @@ mod tests {
             let p = seeded(s, &base, &per).expect("a feature frequency");
             assert!((p[0] - truth[0]).abs() <= 1.0, "{name}: {p:?}");
         }
+    }
+
+    #[test]
+    fn courses_skip_a_grain_hump_that_does_not_repeat() {
+        // A correlation profile with the broad hump of a grain at lag 6
+        // that only decays, over courses every 24 px.
+        let p: Vec<f64> = (0..64)
+            .map(|r| {
+                let r = r as f64;
+                0.2 * (std::f64::consts::TAU * r / 24.0).cos()
+                    + 0.6 * (-((r - 6.0) / 2.0).powi(2)).exp()
+                    + 0.6 * (-r / 1.5).exp()
+            })
+            .collect();
+        assert_eq!(first_peak(&p, false).period.round(), 6.0);
+        assert!(!repeats(&p, 6));
+        assert_eq!(first_peak(&p, true).period.round(), 24.0);
+        // A true period repeats and is kept either way.
+        let q: Vec<f64> = (0..64)
+            .map(|r| 0.8 * (std::f64::consts::TAU * r as f64 / 8.0).cos())
+            .collect();
+        assert!(repeats(&q, 8));
+        assert_eq!(first_peak(&q, true).period, first_peak(&q, false).period);
+    }
+
+    #[test]
+    fn the_course_direction_is_the_one_a_fan_of_directions_bears_out() {
+        // Courses 16 px apart across 90° cross every direction δ away every
+        // 16 / cos δ px; a short grain along 0° holds in that direction only.
+        let step = 180.0 / DIRECTIONS as f64;
+        let lines: Vec<Peak> = (0..DIRECTIONS)
+            .map(|k| {
+                let delta = (k as f64 * step - 90.0).abs();
+                if k == 0 {
+                    Peak {
+                        period: 6.0,
+                        strength: 0.6,
+                    }
+                } else if delta <= 60.0 {
+                    Peak {
+                        period: 16.0 / delta.to_radians().cos(),
+                        strength: 0.5,
+                    }
+                } else {
+                    Peak {
+                        period: 30.0,
+                        strength: 0.1,
+                    }
+                }
+            })
+            .collect();
+        let (shortest, _) = across_of(&lines, |_| 0.0).unwrap();
+        assert_eq!(shortest, 0.0);
+        let (angle, peak) = across_of(&lines, |k| support(&lines, k)).unwrap();
+        assert_eq!(angle, 90.0);
+        assert_eq!(peak.period, 16.0);
+        assert!(support(&lines, 0) < support(&lines, DIRECTIONS / 2));
     }
 
     #[test]
