@@ -278,6 +278,14 @@ pub(super) fn refine_with_integers(
             let mut tried: Vec<(f64, f64, Vec<f64>)> =
                 scored.into_iter().map(|(o, v, p, _)| (o, v, p)).collect();
             tried.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+            tracing::debug!(
+                shader = shader.name,
+                param = spec.name,
+                here,
+                here_rank = rank(&best),
+                tried = ?tried.iter().map(|t| (t.1, t.0)).collect::<Vec<_>>(),
+                "whole numbers tried, best first"
+            );
             for (_, _, p) in tried.iter().take(effort.alternatives) {
                 let (e, n) =
                     sweep_and_refine(shader, p, max_iters.div_ceil(2), effort, target, evals)?;
