@@ -140,6 +140,14 @@ pub(crate) fn prune_text(p: Option<texsyn_engine::PruneStats>) -> String {
 }
 
 fn main() -> ExitCode {
+    // A report piped into `head` meets a closed pipe: end quietly, as Unix
+    // tools do, instead of panicking in `println!`.
+    // SAFETY: restoring a signal's default disposition at start-up, before
+    // any thread exists.
+    #[cfg(unix)]
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
