@@ -92,8 +92,7 @@ pub(super) struct Effort {
     pub alternatives: usize,
     /// When set, the shader's count (its layout's) only moves this share
     /// from where it is: it was read from the periods, and a harmonic may
-    /// score better on the objective (with a window of at least one, a
-    /// seeded count below 7 could drift by one).
+    /// score better on the objective (at 15%, a count below 7 stays put).
     pub count_window: Option<f64>,
     /// When set, a scattered shader's count is tried at every value of its
     /// range, each refined by a simplex run of this many iterations before

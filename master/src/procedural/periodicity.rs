@@ -33,7 +33,7 @@ const FIRST_PEAK_SHARE: f64 = 0.6;
 const ACROSS_SHARE: f64 = 0.5;
 
 /// The widest angle, in degrees, from a direction at which another
-/// direction's period still bears out its lines ([`Periodicity::support`]).
+/// direction's period still bears out its lines ([`support`]).
 const SUPPORT_FAN: f64 = 60.0;
 /// How far (log ratio) a direction's period may differ from the one lines
 /// across another direction predict and still bear it out.
