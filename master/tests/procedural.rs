@@ -734,3 +734,59 @@ fn the_tones_pieces_tell_scattered_features_from_noise() {
     let params = seeded(cells, &mid, &of_photo("leopard_color_64.png")).expect("a count");
     assert_eq!(params[0], 4.0, "{params:?}");
 }
+
+/// Stones (§3.3): a parallel target whose tones break into separate
+/// pieces (the bundled flagstones, elongated along a diagonal; the brick
+/// courses) is open to the scattered shaders, and its pieces count in the
+/// structure term. Veins (the pink marble) and streaks (the rain) are
+/// parallel and their tones join up; a lattice and an isotropic target are
+/// not stones. With a catalogue of `marble` and `cells` only, the
+/// flagstones go to `cells` (without the rule the arrangement keeps
+/// `marble` alone) and the marble stays `marble`.
+#[test]
+fn elongated_stones_go_to_cells_and_veins_stay_marble() {
+    use texsyn::procedural::objective::periodicity_of;
+    for (name, want) in [
+        ("stone33_color_156.png", true),
+        ("brick_gray_256.png", true),
+        ("pink_marble_color_128.png", false),
+        ("rain_color_108.png", false),
+        ("brick_color_96.png", false),
+        ("coffee_beans_color_256.png", false),
+    ] {
+        let img = texsyn::procedural::analysis_image(&common::texture(name), 128);
+        let (per, a) = periodicity_of(&img);
+        assert_eq!(a.stones(&per), want, "{name}: {a:?} {:?}", per.pieces);
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let cat = dir.path().join("cat.json");
+    ok(&[
+        "match",
+        "catalogue",
+        "-o",
+        s(&cat),
+        "--size",
+        "128",
+        "--samples",
+        "40",
+        "--shaders",
+        "marble,cells",
+        "-q",
+    ]);
+    for (name, want) in [
+        ("stone33_color_156.png", "cells"),
+        ("pink_marble_color_128.png", "marble"),
+    ] {
+        let r = ok(&[
+            "match",
+            s(&common::assets().join(name)),
+            "--catalogue",
+            s(&cat),
+            "-o",
+            s(&dir.path().join("out.png")),
+            "-q",
+        ]);
+        let v: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+        assert_eq!(v["shader"], want, "{name}: {v}");
+    }
+}

@@ -179,21 +179,24 @@ struct Start {
 pub(super) const STRUCTURE_WEIGHT: f64 = 1.0;
 
 /// Weight of the pieces' separation difference in the structure term of an
-/// isotropic target (the separations differ by 0 to 1).
+/// isotropic target or of stones (the separations differ by 0 to 1).
 const SEPARATION_WEIGHT: f64 = 1.0;
 
 /// The structure term of `params` of `sh` against the target: how
 /// differently they repeat ([`Periodicity::distance`]) and, for an
-/// isotropic target, how differently their tones break into pieces
-/// ([`super::pieces`]): noise and scattered features repeat alike and
-/// differ there. In lattices and parallel lines the pieces follow joint
-/// widths and gaps, not the family, so they are left out.
+/// isotropic target or stones ([`super::arrangement::Analysis::stones`]), how differently
+/// their tones break into pieces ([`super::pieces`]): noise and scattered
+/// features repeat alike and differ there, and veins drawn out along the
+/// stones' direction repeat as they do. In lattices and parallel lines
+/// the pieces follow joint widths and gaps, not the family, so they are
+/// left out.
 pub(super) fn structure_term(sh: &Shader, params: &[f64], target: &Target) -> f64 {
     let n = target.periodicity.size;
     let field = sh.render_field(params, n, n, n);
     let render = Periodicity::of_field(&field, n);
     let mut t = target.periodicity.distance(&render);
-    if target.arrangement.arrangement == Arrangement::Isotropic {
+    let a = &target.arrangement;
+    if a.arrangement == Arrangement::Isotropic || a.stones(&target.periodicity) {
         t += SEPARATION_WEIGHT
             * (target.periodicity.pieces.separation - render.pieces.separation).abs();
     }
@@ -290,13 +293,15 @@ fn starting_points(cat: &Catalogue, target: &Target, s: &MatchSettings) -> Resul
         "the catalogue has none of the selected shaders; rebuild it"
     );
     // Structure first: only the shaders that show the target's
-    // arrangement (all when none of the selected does).
+    // arrangement, and for stones the isotropic ones too, the scattered
+    // shaders among them (all when none of the selected does).
     let arrangement = target.arrangement.arrangement;
-    if per_shader
-        .iter()
-        .any(|(_, c)| c[0].shader.shows.contains(&arrangement))
-    {
-        per_shader.retain(|(_, c)| c[0].shader.shows.contains(&arrangement));
+    let stones = target.arrangement.stones(&target.periodicity);
+    let shows = |sh: &Shader| {
+        sh.shows.contains(&arrangement) || (stones && sh.shows.contains(&Arrangement::Isotropic))
+    };
+    if per_shader.iter().any(|(_, c)| shows(c[0].shader)) {
+        per_shader.retain(|(_, c)| shows(c[0].shader));
     }
     // Families ranked by catalogue distance plus the structure term; the
     // best few within the disparity go on.
