@@ -165,6 +165,11 @@ fn synthetic_targets_are_recovered_with_integers_exact() {
 
 /// A small catalogue file of `shaders` in `dir`.
 fn small_catalogue(dir: &Path, shaders: &str) -> std::path::PathBuf {
+    catalogue_of(dir, shaders, "64", "60")
+}
+
+/// A catalogue file of `shaders` in `dir`, `samples` each at `size`².
+fn catalogue_of(dir: &Path, shaders: &str, size: &str, samples: &str) -> std::path::PathBuf {
     let cat = dir.join("cat.json");
     ok(&[
         "match",
@@ -172,9 +177,9 @@ fn small_catalogue(dir: &Path, shaders: &str) -> std::path::PathBuf {
         "-o",
         s(&cat),
         "--size",
-        "64",
+        size,
         "--samples",
-        "60",
+        samples,
         "--shaders",
         shaders,
         "-q",
@@ -759,20 +764,7 @@ fn elongated_stones_go_to_cells_and_veins_stay_marble() {
         assert_eq!(a.stones(&per), want, "{name}: {a:?} {:?}", per.pieces);
     }
     let dir = tempfile::tempdir().unwrap();
-    let cat = dir.path().join("cat.json");
-    ok(&[
-        "match",
-        "catalogue",
-        "-o",
-        s(&cat),
-        "--size",
-        "128",
-        "--samples",
-        "40",
-        "--shaders",
-        "marble,cells",
-        "-q",
-    ]);
+    let cat = catalogue_of(dir.path(), "marble,cells", "128", "40");
     for (name, want) in [
         ("stone33_color_156.png", "cells"),
         ("pink_marble_color_128.png", "marble"),
