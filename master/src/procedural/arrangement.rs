@@ -110,14 +110,27 @@ impl Analysis {
     }
 
     /// Whether a parallel target is separate pieces drawn out along one
-    /// direction (elongated flagstones, beans in a drift) rather than lines:
-    /// split at the median, one tone holds pieces that the other encloses
-    /// ([`STONES`]). Such a target is open to the isotropic shaders (the scattered ones
-    /// among them) as well,
-    /// and its pieces count in the structure term (§3.3: the structure that
-    /// tells textures apart).
+    /// direction (elongated flagstones, beans in a drift) rather than
+    /// lines: split at the median, one tone holds pieces that the other
+    /// encloses ([`STONES`]).
     pub fn stones(&self, per: &Periodicity) -> bool {
         self.arrangement == Arrangement::Parallel && per.pieces.separation >= STONES
+    }
+
+    /// Whether a shader that `shows` these arrangements is tried on the
+    /// target: it shows the target's arrangement, or the target is stones
+    /// and it shows isotropic ones (the scattered shaders among them).
+    pub fn admits(&self, per: &Periodicity, shows: &[Arrangement]) -> bool {
+        shows.contains(&self.arrangement)
+            || (shows.contains(&Arrangement::Isotropic) && self.stones(per))
+    }
+
+    /// Whether how the tones break into pieces tells the target's family
+    /// (§3.3): for isotropic targets (noise against scattered features) and
+    /// stones (pieces against veins). In lattices and parallel lines the
+    /// pieces follow joint widths and gaps, not the family.
+    pub fn pieces_tell(&self, per: &Periodicity) -> bool {
+        self.arrangement == Arrangement::Isotropic || self.stones(per)
     }
 }
 

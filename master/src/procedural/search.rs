@@ -17,7 +17,6 @@ use rayon::prelude::*;
 use serde::Serialize;
 use serde_json::{json, Value};
 
-use super::arrangement::Arrangement;
 use super::catalogue::{describe, selected, unit_distance, Catalogue};
 use super::local::{refine, refine_with_integers, Effort};
 use super::objective::{Eval, Target};
@@ -183,20 +182,17 @@ pub(super) const STRUCTURE_WEIGHT: f64 = 1.0;
 const SEPARATION_WEIGHT: f64 = 1.0;
 
 /// The structure term of `params` of `sh` against the target: how
-/// differently they repeat ([`Periodicity::distance`]) and, for an
-/// isotropic target or stones ([`super::arrangement::Analysis::stones`]), how differently
-/// their tones break into pieces ([`super::pieces`]): noise and scattered
-/// features repeat alike and differ there, and veins drawn out along the
-/// stones' direction repeat as they do. In lattices and parallel lines
-/// the pieces follow joint widths and gaps, not the family, so they are
-/// left out.
+/// differently they repeat ([`Periodicity::distance`]) and, where the
+/// pieces tell the family ([`super::arrangement::Analysis::pieces_tell`]),
+/// how differently their tones break into pieces ([`super::pieces`]):
+/// noise and scattered features repeat alike and differ there, and so do
+/// stones and the veins drawn out along their direction.
 pub(super) fn structure_term(sh: &Shader, params: &[f64], target: &Target) -> f64 {
     let n = target.periodicity.size;
     let field = sh.render_field(params, n, n, n);
     let render = Periodicity::of_field(&field, n);
     let mut t = target.periodicity.distance(&render);
-    let a = &target.arrangement;
-    if a.arrangement == Arrangement::Isotropic || a.stones(&target.periodicity) {
+    if target.arrangement.pieces_tell(&target.periodicity) {
         t += SEPARATION_WEIGHT
             * (target.periodicity.pieces.separation - render.pieces.separation).abs();
     }
@@ -295,13 +291,9 @@ fn starting_points(cat: &Catalogue, target: &Target, s: &MatchSettings) -> Resul
     // Structure first: only the shaders that show the target's
     // arrangement, and for stones the isotropic ones too, the scattered
     // shaders among them (all when none of the selected does).
-    let arrangement = target.arrangement.arrangement;
-    let stones = target.arrangement.stones(&target.periodicity);
-    let shows = |sh: &Shader| {
-        sh.shows.contains(&arrangement) || (stones && sh.shows.contains(&Arrangement::Isotropic))
-    };
-    if per_shader.iter().any(|(_, c)| shows(c[0].shader)) {
-        per_shader.retain(|(_, c)| shows(c[0].shader));
+    let admits = |sh: &Shader| target.arrangement.admits(&target.periodicity, sh.shows);
+    if per_shader.iter().any(|(_, c)| admits(c[0].shader)) {
+        per_shader.retain(|(_, c)| admits(c[0].shader));
     }
     // Families ranked by catalogue distance plus the structure term; the
     // best few within the disparity go on.
