@@ -62,6 +62,12 @@ pub struct SolidArgs {
     /// only with --histogram above 0 and one material).
     #[arg(long, default_value_t = solid::BAND_MATCHING, value_name = "ROUNDS")]
     pub band_matching: usize,
+    /// Leave the band-matched colour's pixel checker as it comes: by
+    /// default each slice's energy at the pixel Nyquist frequency is damped
+    /// to under the exemplars' where it is above (only slices over it
+    /// change).
+    #[arg(long)]
+    pub no_checker_cap: bool,
     /// Morph the materials along a ramp across x, y or z: material 1 at the
     /// start, the last at the end.
     #[arg(long, conflicts_with = "weight_volumes")]
@@ -232,6 +238,7 @@ impl TryFrom<&SolidArgs> for SolidJob {
                 base,
                 index_histogram: a.index_histogram,
                 band_matching: a.band_matching,
+                checker_cap: !a.no_checker_cap,
             },
             weights,
             slices: parse_slices(&a.slices)?,

@@ -36,6 +36,17 @@ pub const MAX_ITERATIONS: usize = 16;
 /// Band-pass levels matched (S_L's count, `compare::laplacian_distance`).
 const BANDS: usize = 4;
 
+/// Most whole passes of the checker damping per axis pair
+/// ([`Grid::checker_at_most`]).
+const CHECKER_PASSES: usize = 16;
+
+/// Share of the exemplars' checker energy the planes are capped at: the
+/// rounding to bytes adds to it.
+const CHECKER_MARGIN: f64 = 0.8;
+
+/// Bisection steps of the last pass's strength (2⁻¹⁰ of β).
+const CHECKER_STEPS: usize = 10;
+
 /// Binomial taps of the pyramid's reduce (Burt and Adelson).
 const TAPS: [f32; 5] = [1.0 / 16.0, 4.0 / 16.0, 6.0 / 16.0, 4.0 / 16.0, 1.0 / 16.0];
 
@@ -118,6 +129,138 @@ impl Grid {
                     0.25 * g.v[g.index(l)] + 0.5 * g.v[g.index(p)] + 0.25 * g.v[g.index(r)]
                 })
             })
+    }
+
+    /// The pixel checker of the planes spanned by axes `a` and `b`: the mean
+    /// over every 2×2 square of those planes (wrapping) of
+    /// `(¼ (v₀₀ − v₁₀ − v₀₁ + v₁₁))²`, the measure `compare` takes of an
+    /// image's luminance (its `checker`), here of one colour component.
+    /// Summed plane by plane in a fixed order, so the thread count changes
+    /// no bit.
+    fn checker(&self, a: usize, b: usize) -> f64 {
+        let m = self.mixed_difference(a, b);
+        let plane = (self.size[0] * self.size[1]).max(1);
+        let sums: Vec<f64> =
+            m.v.par_chunks(plane)
+                .map(|c| c.iter().map(|&x| f64::from(x / 4.0).powi(2)).sum())
+                .collect();
+        sums.iter().sum::<f64>() / m.v.len().max(1) as f64
+    }
+
+    /// `v(p) − v(p + a) − v(p + b) + v(p + a + b)` (wrapping; `sign` −1
+    /// steps back along both axes instead, the adjoint).
+    fn mixed(&self, a: usize, b: usize, back: bool) -> Self {
+        let (na, nb) = (self.size[a], self.size[b]);
+        let (sa, sb) = if back { (na - 1, nb - 1) } else { (1, 1) };
+        Self::from_fn(self.size, |p| {
+            let (mut pa, mut pb, mut pab) = (p, p, p);
+            pa[a] = (p[a] + sa) % na;
+            pb[b] = (p[b] + sb) % nb;
+            pab[a] = pa[a];
+            pab[b] = pb[b];
+            self.v[self.index(p)] - self.v[self.index(pa)] - self.v[self.index(pb)]
+                + self.v[self.index(pab)]
+        })
+    }
+
+    fn mixed_difference(&self, a: usize, b: usize) -> Self {
+        self.mixed(a, b, false)
+    }
+
+    /// The grid with its checker in the planes of `a` and `b` damped by
+    /// `beta` in [0, 1]: `v − β/16 · MᵀM v`, where `M` is the mixed
+    /// difference. Its frequency response is `1 − β sin²(ωa/2) sin²(ωb/2)`:
+    /// the pixel checker (both at Nyquist) is scaled by `1 − β`, what varies
+    /// along one axis only (an edge along the other) is untouched.
+    fn damp_checker(&self, a: usize, b: usize, beta: f64) -> Self {
+        let mtm = self.mixed_difference(a, b).mixed(a, b, true);
+        let k = (beta / 16.0) as f32;
+        let v = self
+            .v
+            .par_iter()
+            .zip(&mtm.v)
+            .map(|(x, y)| x - k * y)
+            .collect();
+        Self { size: self.size, v }
+    }
+
+    /// The grid with the checker of each plane (across each axis, so of
+    /// each slice) brought down to at most `target` where it is above
+    /// ([`Grid::plane_checker_at_most`]); planes at or under it keep their
+    /// values. The axis pairs are taken in the order x–y… as listed, each
+    /// plane on its own, so the thread count changes no bit.
+    fn checker_at_most(&self, target: f64) -> Self {
+        let mut g = self.clone();
+        for (a, b) in [(1, 2), (0, 2), (0, 1)] {
+            if g.size[a] < 2 || g.size[b] < 2 {
+                continue;
+            }
+            let c = 3 - a - b;
+            let planes: Vec<Grid> = (0..g.size[c])
+                .into_par_iter()
+                .map(|k| g.plane(a, b, k).plane_checker_at_most(target))
+                .collect();
+            for (k, p) in planes.iter().enumerate() {
+                for j in 0..g.size[b] {
+                    for i in 0..g.size[a] {
+                        let mut q = [0; 3];
+                        (q[a], q[b], q[c]) = (i, j, k);
+                        let at = g.index(q);
+                        g.v[at] = p.v[j * g.size[a] + i];
+                    }
+                }
+            }
+        }
+        g
+    }
+
+    /// The plane of axes `a` and `b` at `k` along the third, as a 2-D grid
+    /// (`a` its x).
+    fn plane(&self, a: usize, b: usize, k: usize) -> Self {
+        let c = 3 - a - b;
+        let (na, nb) = (self.size[a], self.size[b]);
+        let mut v = Vec::with_capacity(na * nb);
+        for j in 0..nb {
+            for i in 0..na {
+                let mut q = [0; 3];
+                (q[a], q[b], q[c]) = (i, j, k);
+                v.push(self.v[self.index(q)]);
+            }
+        }
+        Self {
+            size: [na, nb, 1],
+            v,
+        }
+    }
+
+    /// A 2-D grid with its checker brought down to at most `target`:
+    /// whole passes of [`Grid::damp_checker`] at β = 1 while one is not
+    /// enough (at most [`CHECKER_PASSES`]), then the least β (bisection)
+    /// that reaches it. At or under the target it is returned as it is.
+    fn plane_checker_at_most(self, target: f64) -> Self {
+        let mut g = self;
+        for _ in 0..CHECKER_PASSES {
+            if g.checker(0, 1) <= target {
+                break;
+            }
+            let full = g.damp_checker(0, 1, 1.0);
+            if full.checker(0, 1) > target {
+                g = full;
+                continue;
+            }
+            let (mut lo, mut hi) = (0.0f64, 1.0f64);
+            for _ in 0..CHECKER_STEPS {
+                let mid = 0.5 * (lo + hi);
+                if g.damp_checker(0, 1, mid).checker(0, 1) > target {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            g = g.damp_checker(0, 1, hi);
+            break;
+        }
+        g
     }
 
     fn reduce(&self) -> Self {
@@ -276,19 +419,93 @@ pub fn match_bands(
             g
         })
         .collect();
+    recombine(data, channels, &axes, mean, &components);
+}
+
+/// Each voxel of `data` rebuilt from its `components` along `axes` about
+/// `mean`, rounded to bytes.
+fn recombine(
+    data: &mut [u8],
+    channels: usize,
+    axes: &[[f32; 3]],
+    mean: [f32; 3],
+    components: &[Grid],
+) {
     data.par_chunks_mut(channels)
         .enumerate()
         .for_each(|(i, px)| {
             for (c, o) in px.iter_mut().enumerate() {
                 let v: f32 = axes
                     .iter()
-                    .zip(&components)
+                    .zip(components)
                     .map(|(a, g)| a[c] * g.v[i])
                     .sum::<f32>()
                     + mean[c];
                 *o = v.round().clamp(0.0, 255.0) as u8;
             }
         });
+}
+
+/// Caps the pixel checker of every slice of `data` (a volume of `size`,
+/// `channels` bytes per voxel) at the `maps`' (each with its weight): each
+/// colour component (as [`match_bands`] splits them) has each plane across
+/// each axis damped at the pixel Nyquist frequency of that plane
+/// ([`Grid::checker_at_most`]) until its checker is at most
+/// [`CHECKER_MARGIN`] of the maps' weighted mean checker. Slices already
+/// under it keep their bytes, and a volume whose slices all are is left
+/// as it is.
+///
+/// The last step on a band-matched solid: matched to exemplars that have
+/// almost no energy at the pixel scale (the lattice photos), the rubble a
+/// solid makes of a lattice has hard, oblique edges whose pixel checker
+/// was up to 7× the exemplar's (ARCHITECTURE §11).
+pub fn cap_checker(
+    data: &mut [u8],
+    size: [usize; 3],
+    channels: usize,
+    maps: &[(&ColorImage, f64)],
+) {
+    let voxels: usize = size.iter().product();
+    if voxels == 0 || maps.is_empty() || data.len() != voxels * channels {
+        return;
+    }
+    let (axes, mean) = colour_axes(maps, channels);
+    let project = |px: &[u8], a: &[f32; 3]| -> f32 {
+        px.iter()
+            .zip(a)
+            .zip(mean)
+            .map(|((&v, &w), m)| w * (f32::from(v) - m))
+            .sum()
+    };
+    let weight: f64 = maps.iter().map(|m| m.1).sum();
+    let mut changed = false;
+    let components: Vec<Grid> = axes
+        .iter()
+        .map(|a| {
+            let checker = maps
+                .iter()
+                .map(|&(m, w)| {
+                    let e = Grid {
+                        size: [m.width, m.height, 1],
+                        v: m.rgb
+                            .chunks_exact(3)
+                            .map(|px| project(&px[..channels], a))
+                            .collect(),
+                    };
+                    w * e.checker(0, 1)
+                })
+                .sum::<f64>()
+                / weight.max(f64::MIN_POSITIVE);
+            let v = data.par_chunks(channels).map(|px| project(px, a)).collect();
+            let g = Grid { size, v };
+            let capped = g.checker_at_most(CHECKER_MARGIN * checker);
+            changed |= capped != g;
+            capped
+        })
+        .collect();
+    if changed {
+        recombine(data, channels, &axes, mean, &components);
+    }
 }
 
 #[cfg(test)]
@@ -324,6 +541,80 @@ mod tests {
                 prop_assert!((a - b).abs() < 1e-3, "{} against {}", a, b);
             }
         }
+    }
+
+    /// The damping against a scalar reference of its frequency response:
+    /// the pixel checker of its planes is scaled by `1 − β`, what varies
+    /// along one of the two axes only is untouched, and the checker
+    /// measure is `compare`'s.
+    #[test]
+    fn damping_scales_the_checker_and_leaves_one_axis_variation() {
+        let checker = Grid::from_fn(
+            [8, 6, 4],
+            |p| if (p[0] + p[2]) % 2 == 0 { 1.0 } else { -1.0 },
+        );
+        // ¼ (1 + 1 + 1 + 1) per square, squared.
+        assert!((checker.checker(0, 2) - 1.0).abs() < 1e-9);
+        assert!(
+            checker.checker(0, 1) < 1e-9,
+            "(x, y) planes vary along x only: no mixed difference"
+        );
+        for beta in [0.0, 0.25, 1.0] {
+            let d = checker.damp_checker(0, 2, beta);
+            for (a, b) in d.v.iter().zip(&checker.v) {
+                assert!(
+                    (a - (1.0 - beta as f32) * b).abs() < 1e-5,
+                    "β {beta}: {a} against {b}"
+                );
+            }
+        }
+        let ramp = noise([8, 1, 6], 9);
+        let along_x = Grid::from_fn([8, 5, 6], |p| ramp.v[p[0]]);
+        assert_eq!(along_x.damp_checker(0, 1, 1.0), along_x);
+    }
+
+    /// The cap brings a planted pixel checker down to the exemplar's in
+    /// every slice, and leaves a volume already under it byte for byte.
+    #[test]
+    fn cap_checker_takes_a_planted_checker_down_to_the_exemplar_s() {
+        let n = 16;
+        let smooth = |p: [usize; 3]| 100.0 + 40.0 * ((p[0] + p[1] + p[2]) as f32 * 0.3).sin();
+        let image = |f: &dyn Fn(usize, usize) -> f32| ColorImage {
+            width: n,
+            height: n,
+            rgb: (0..n * n)
+                .flat_map(|i| [f(i % n, i / n).round() as u8; 3])
+                .collect(),
+        };
+        let ex = image(&|x, y| smooth([x, y, 0]));
+        let ce = crate::compare::checker_energy(&ex);
+        let volume = |f: &(dyn Fn([usize; 3]) -> f32 + Sync)| -> Vec<u8> {
+            let g = Grid::from_fn([n; 3], f);
+            g.v.iter().flat_map(|&v| [v.round() as u8; 3]).collect()
+        };
+        let slices_worst = |d: &[u8]| {
+            let v = crate::imaging::volume::Volume::new([n; 3], 3, d.to_vec()).unwrap();
+            crate::imaging::volume::Axis::ALL
+                .into_iter()
+                .flat_map(|a| (0..n).map(move |k| (a, k)))
+                .map(|(a, k)| crate::compare::checker_energy(&v.slice_rgb(a, k)) / ce)
+                .fold(0.0f64, f64::max)
+        };
+        let mut planted = volume(&|p| {
+            smooth(p)
+                + if (p[0] + p[1] + p[2]) % 2 == 0 {
+                    12.0
+                } else {
+                    -12.0
+                }
+        });
+        assert!(slices_worst(&planted) > 10.0, "{}", slices_worst(&planted));
+        cap_checker(&mut planted, [n; 3], 3, &[(&ex, 1.0)]);
+        assert!(slices_worst(&planted) <= 1.0, "{}", slices_worst(&planted));
+        let mut calm = volume(&|p| 100.0 + 0.5 * (smooth([p[0], p[1], 0]) - 100.0));
+        let before = calm.clone();
+        cap_checker(&mut calm, [n; 3], 3, &[(&ex, 1.0)]);
+        assert_eq!(calm, before);
     }
 
     /// Reduce is the binomial filter of a scalar reference, wrapping.

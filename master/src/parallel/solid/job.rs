@@ -283,6 +283,7 @@ impl SolidJob {
             "histogram": s.base.histogram,
             "index_histogram": s.index_histogram,
             "band_matching": s.band_matching,
+            "checker_cap": s.checker_cap,
             "seed": s.base.seed,
             "levels": out.levels,
             "appearance_components": out.dims,

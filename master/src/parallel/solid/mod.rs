@@ -86,6 +86,10 @@ pub struct Solid {
     /// Rounds of the colour's band matching ([`bands`]; 0: none), which
     /// [`replay`] applies too, only where `colour_matching` is on.
     pub band_matching: usize,
+    /// Whether the band-matched colour's slices have their pixel checker
+    /// capped at the exemplars' ([`bands::cap_checker`]), which [`replay`]
+    /// applies too.
+    pub checker_cap: bool,
 }
 
 /// Bytes a solid of `size` with `views` views, `materials` materials and
@@ -279,6 +283,7 @@ pub fn synthesize(
         explained_variance: pca.explained,
         colour_matching: if materials == 1 { s.histogram } else { 0.0 },
         band_matching: settings.band_matching,
+        checker_cap: settings.checker_cap,
     };
     let exemplars: Vec<ColorImage> = views.iter().map(|v| v.exemplar.clone()).collect();
     solid.colour = replay(&solid, &exemplars, 3)?.data;
@@ -296,6 +301,9 @@ pub struct SolidSettings {
     pub index_histogram: f32,
     /// Rounds of the colour's band histogram matching ([`bands`]; 0: off).
     pub band_matching: usize,
+    /// Cap the band-matched colour's pixel checker at the exemplars'
+    /// ([`bands::cap_checker`]; only with band matching).
+    pub checker_cap: bool,
 }
 
 /// Default weight of the index histogram matching (ARCHITECTURE §11): on
@@ -327,6 +335,7 @@ impl Default for SolidSettings {
             },
             index_histogram: INDEX_HISTOGRAM,
             band_matching: BAND_MATCHING,
+            checker_cap: true,
         }
     }
 }
@@ -379,6 +388,14 @@ pub fn replay(s: &Solid, maps: &[ColorImage], channels: usize) -> Result<Volume>
                 s.colour_matching,
             );
         }
+    }
+    if s.colour_matching > 0.0 && s.band_matching > 0 && s.checker_cap {
+        let weighted: Vec<(&ColorImage, f64)> = maps
+            .iter()
+            .enumerate()
+            .map(|(j, m)| (m, f64::from(s.weights.at(j, 0))))
+            .collect();
+        bands::cap_checker(&mut data, s.size, channels, &weighted);
     }
     Volume::new(s.size, channels, data)
 }

@@ -134,7 +134,13 @@ fn walnut_solid(n: usize, histogram: f32) -> (ColorImage, Solid) {
 /// A solid of `n`³ from walnut on all three axes, with the default settings
 /// as `change` leaves them.
 fn walnut_solid_with(n: usize, change: impl FnOnce(&mut SolidSettings)) -> (ColorImage, Solid) {
-    let ex = crate::parallel::tests::texture("walnut_color_128.png");
+    solid_of("walnut_color_128.png", n, change)
+}
+
+/// A solid of `n`³ from the bundled texture `name` on all three axes, with
+/// the default settings as `change` leaves them.
+fn solid_of(name: &str, n: usize, change: impl FnOnce(&mut SolidSettings)) -> (ColorImage, Solid) {
+    let ex = crate::parallel::tests::texture(name);
     let views: Vec<View> = Axis::ALL
         .into_iter()
         .map(|axis| View {
@@ -204,6 +210,41 @@ fn band_matching_gives_the_slices_the_exemplar_s_crispness_without_a_checker() {
             "pixel checker {k:.2} against the exemplar's {ce:.2}"
         );
     }
+}
+
+/// The checker cap ([`super::bands::cap_checker`]) on a lattice exemplar
+/// with almost no energy at the pixel scale: every slice across every axis
+/// has at most the exemplar's pixel checker, where without the cap (the
+/// negative control) the rubble's hard oblique edges put a centre slice
+/// over it; the Laplacian statistics stay where they were.
+#[test]
+fn checker_cap_keeps_every_slice_under_the_exemplar_s_pixel_checker() {
+    use crate::compare::checker_energy;
+    let (ex, with) = solid_of("brick_gray_64.png", 40, |_| {});
+    let (_, without) = solid_of("brick_gray_64.png", 40, |s| s.checker_cap = false);
+    let ce = checker_energy(&ex);
+    let worst = |s: &Solid| {
+        centre_slices(s)
+            .iter()
+            .map(|c| checker_energy(c) / ce)
+            .fold(0.0f64, f64::max)
+    };
+    assert!(worst(&without) > 1.0, "uncapped {:.2}", worst(&without));
+    let v = Volume::new(with.size, 3, with.colour.clone()).unwrap();
+    for a in Axis::ALL {
+        for k in 0..with.size[a.index()] {
+            let r = checker_energy(&v.slice_rgb(a, k)) / ce;
+            assert!(
+                r <= 1.0,
+                "{a:?} slice {k}: pixel checker {r:.2} of the exemplar's"
+            );
+        }
+    }
+    let (l1, l0) = (
+        centre_slices_s_l(&ex, &with),
+        centre_slices_s_l(&ex, &without),
+    );
+    assert!(l1 < 1.1 * l0, "centre slices' S_L {l0:.4} → {l1:.4}");
 }
 
 #[test]
