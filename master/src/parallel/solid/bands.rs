@@ -368,29 +368,19 @@ pub fn match_bands(
         return;
     }
     let (axes, mean) = colour_axes(maps, channels);
-    let project = |px: &[u8], a: &[f32; 3]| -> f32 {
-        px.iter()
-            .zip(a)
-            .zip(mean)
-            .map(|((&v, &w), m)| w * (f32::from(v) - m))
-            .sum()
-    };
     let components: Vec<Grid> = axes
         .iter()
         .map(|a| {
-            let v = data.par_chunks(channels).map(|px| project(px, a)).collect();
+            let v = data
+                .par_chunks(channels)
+                .map(|px| project(px, a, mean))
+                .collect();
             let mut g = Grid { size, v }.without_nyquist();
             // Each map's pyramid of this component, and its values.
             let theirs: Vec<(Vec<Grid>, Vec<f32>, f64)> = maps
                 .iter()
                 .map(|&(m, w)| {
-                    let e = Grid {
-                        size: [m.width, m.height, 1],
-                        v: m.rgb
-                            .chunks_exact(3)
-                            .map(|px| project(&px[..channels], a))
-                            .collect(),
-                    };
+                    let e = image_component(m, channels, a, mean);
                     let (bands, _) = pyramid(&e, levels);
                     (bands, e.v, w)
                 })
@@ -420,6 +410,26 @@ pub fn match_bands(
         })
         .collect();
     recombine(data, channels, &axes, mean, &components);
+}
+
+/// A pixel's or voxel's value on colour axis `a` about `mean`.
+fn project(px: &[u8], a: &[f32; 3], mean: [f32; 3]) -> f32 {
+    px.iter()
+        .zip(a)
+        .zip(mean)
+        .map(|((&v, &w), m)| w * (f32::from(v) - m))
+        .sum()
+}
+
+/// Image `m`'s component on colour axis `a` about `mean`, as a 2-D grid.
+fn image_component(m: &ColorImage, channels: usize, a: &[f32; 3], mean: [f32; 3]) -> Grid {
+    Grid {
+        size: [m.width, m.height, 1],
+        v: m.rgb
+            .chunks_exact(3)
+            .map(|px| project(&px[..channels], a, mean))
+            .collect(),
+    }
 }
 
 /// Each voxel of `data` rebuilt from its `components` along `axes` about
@@ -470,13 +480,6 @@ pub fn cap_checker(
         return;
     }
     let (axes, mean) = colour_axes(maps, channels);
-    let project = |px: &[u8], a: &[f32; 3]| -> f32 {
-        px.iter()
-            .zip(a)
-            .zip(mean)
-            .map(|((&v, &w), m)| w * (f32::from(v) - m))
-            .sum()
-    };
     let weight: f64 = maps.iter().map(|m| m.1).sum();
     let mut changed = false;
     let components: Vec<Grid> = axes
@@ -485,18 +488,15 @@ pub fn cap_checker(
             let checker = maps
                 .iter()
                 .map(|&(m, w)| {
-                    let e = Grid {
-                        size: [m.width, m.height, 1],
-                        v: m.rgb
-                            .chunks_exact(3)
-                            .map(|px| project(&px[..channels], a))
-                            .collect(),
-                    };
+                    let e = image_component(m, channels, a, mean);
                     w * e.checker(0, 1)
                 })
                 .sum::<f64>()
                 / weight.max(f64::MIN_POSITIVE);
-            let v = data.par_chunks(channels).map(|px| project(px, a)).collect();
+            let v = data
+                .par_chunks(channels)
+                .map(|px| project(px, a, mean))
+                .collect();
             let g = Grid { size, v };
             let capped = g.checker_at_most(CHECKER_MARGIN * checker);
             changed |= capped != g;

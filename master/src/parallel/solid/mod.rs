@@ -361,13 +361,13 @@ pub fn replay(s: &Solid, maps: &[ColorImage], channels: usize) -> Result<Volume>
         )
     });
     let mut data = data;
+    // Every view's map with its weight (one material: evenly shared).
+    let weighted: Vec<(&ColorImage, f64)> = maps
+        .iter()
+        .enumerate()
+        .map(|(j, m)| (m, f64::from(s.weights.at(j, 0))))
+        .collect();
     if s.colour_matching > 0.0 && s.band_matching > 0 {
-        // Every view's map with its weight (one material: evenly shared).
-        let weighted: Vec<(&ColorImage, f64)> = maps
-            .iter()
-            .enumerate()
-            .map(|(j, m)| (m, f64::from(s.weights.at(j, 0))))
-            .collect();
         bands::match_bands(&mut data, s.size, channels, &weighted, s.band_matching);
     }
     if s.colour_matching > 0.0 && voxels > 0 {
@@ -390,11 +390,6 @@ pub fn replay(s: &Solid, maps: &[ColorImage], channels: usize) -> Result<Volume>
         }
     }
     if s.colour_matching > 0.0 && s.band_matching > 0 && s.checker_cap {
-        let weighted: Vec<(&ColorImage, f64)> = maps
-            .iter()
-            .enumerate()
-            .map(|(j, m)| (m, f64::from(s.weights.at(j, 0))))
-            .collect();
         bands::cap_checker(&mut data, s.size, channels, &weighted);
     }
     Volume::new(s.size, channels, data)
