@@ -1460,3 +1460,45 @@ fn the_template_s_stitches_pass_round_objects_wider_than_the_paper_s_band() {
         2 * belt
     );
 }
+
+#[test]
+fn derived_tiles_take_no_extra_patch_too_narrow_to_hold_an_object() {
+    // Discs 21 px across at 128-px tiles: the belt is widened to 25 px, and
+    // a half-size extra patch (64 px) would keep a 14-px interior, so its
+    // four paths set halves of discs over others. With the belt at 21 the
+    // extra patch still goes in (a 22-px interior), and it slices more.
+    let sample = disc_sample(384, 10, 150, 4, 7);
+    let set_with = |belt: Option<usize>| {
+        let mut s = tiles::SomolConfig {
+            tile_size: Some(128),
+            belt,
+            ..Default::default()
+        }
+        .settings(&sample, None)
+        .unwrap();
+        s.tiles = 5;
+        let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
+        let extras: usize = set.derived.iter().map(|d| d.extra.len()).sum();
+        let sliced = set.tiles[1..]
+            .iter()
+            .map(|t| sliced_share(t, 10))
+            .sum::<f64>()
+            / (set.tiles.len() - 1) as f64;
+        (s.belt, extras, sliced)
+    };
+    let (belt, extras, wide) = set_with(None);
+    assert!(belt > 21, "belt {belt}: not widened to the discs");
+    assert_eq!(
+        extras, 0,
+        "a {belt}-px belt leaves no room for an extra patch"
+    );
+    let (_, extras, narrow) = set_with(Some(21));
+    assert_eq!(
+        extras, 4,
+        "a 21-px belt keeps one extra patch per derived tile"
+    );
+    assert!(
+        wide < narrow,
+        "sliced share of the derived tiles' discs: without extra patches {wide}, with {narrow}"
+    );
+}

@@ -587,7 +587,8 @@ struct Chosen {
 }
 
 /// The rectangles of the extra patches of a `tw`×`th` tile: none below
-/// [`EXTRA_FROM`] pixels; above, half-size patches centred on the cells of a
+/// [`EXTRA_FROM`] pixels or where a half-size patch is narrower than
+/// [`EXTRA_BELTS`] belts; else half-size patches centred on the cells of a
 /// `n`×`n` grid (`n` = side / [`EXTRA_FROM`]), shifted by up to a quarter of
 /// a cell (seeded) and kept inside the belts of the tile's own patch.
 fn extra_targets(tw: usize, th: usize, s: &TileSetSettings, k: usize) -> Vec<Rect> {
@@ -602,7 +603,7 @@ fn extra_targets(tw: usize, th: usize, s: &TileSetSettings, k: usize) -> Vec<Rec
         tw.saturating_sub(s.margin + s.belt + p),
         th.saturating_sub(s.margin + s.belt + p),
     );
-    if hi_x < lo || hi_y < lo || p <= 2 * s.belt {
+    if hi_x < lo || hi_y < lo || p < EXTRA_BELTS * s.belt {
         return Vec::new();
     }
     let mut rng =
@@ -630,6 +631,13 @@ fn extra_targets(tw: usize, th: usize, s: &TileSetSettings, k: usize) -> Vec<Rec
 /// Tiles at least this large (their smaller side) get extra patches inside
 /// their main one, one per this many pixels of side, squared.
 pub const EXTRA_FROM: usize = 128;
+
+/// An extra patch is at least this many belts wide, so that inside its two
+/// side belts it keeps an interior as wide as a belt. The belt is three
+/// correlation lengths of the sample, about one object: a patch narrower
+/// than this is all paths and shards of cut objects (on the 512² beans at
+/// 128-px tiles, 64-px patches in 25-px belts set half beans over others).
+pub const EXTRA_BELTS: usize = 3;
 
 /// Makes a tile set from `sample` (§3): the template of [`choose_template`]
 /// (or `template` as given), then `tiles - 1` tiles, each the template with
@@ -840,6 +848,42 @@ pub fn make_tile_set(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn extra_patches_keep_an_interior_a_belt_wide_and_stay_inside_the_belts() {
+        // A 128-px tile takes one half-size patch (64 px) while its belt is
+        // at most a third of it; a wider belt (the 512² beans' 25 px) would
+        // leave an interior of 14 px, all paths and shards: none. A 256-px
+        // tile takes four 128-px patches up to a 42-px belt.
+        let sample = ColorImage::new(512, 512);
+        for (tile, belt, want) in [
+            (127, 8, 0),
+            (128, 12, 1),
+            (128, 21, 1),
+            (128, 22, 0),
+            (128, 25, 0),
+            (256, 25, 4),
+            (256, 42, 4),
+            (256, 43, 0),
+        ] {
+            let s = crate::tiles::SomolConfig {
+                tile_size: Some(tile),
+                belt: Some(belt),
+                ..Default::default()
+            }
+            .settings(&sample, None)
+            .unwrap();
+            for k in 1..4 {
+                let got = extra_targets(tile, tile, &s, k);
+                assert_eq!(got.len(), want, "tile {tile}, belt {belt}, tile {k}");
+                for r in got {
+                    assert!(r.width >= EXTRA_BELTS * belt && r.width - 2 * belt >= belt);
+                    assert!(r.x >= belt && r.y >= belt, "{r:?} in the main patch's belt");
+                    assert!(r.x + r.width <= tile - belt && r.y + r.height <= tile - belt);
+                }
+            }
+        }
+    }
 
     #[test]
     fn lazy_joint_checks_choose_what_checking_every_candidate_chooses() {
