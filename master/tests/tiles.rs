@@ -1401,6 +1401,26 @@ fn sliced_share(tile: &ColorImage, r: usize) -> f64 {
     sliced as f64 / total.max(1) as f64
 }
 
+/// A Somol set of `count` 128-px tiles of `sample` by `config` (its tile
+/// size set to 128), and the belt its settings took.
+fn disc_set(
+    sample: &ColorImage,
+    config: tiles::SomolConfig,
+    count: usize,
+) -> (usize, tiles::TileSet) {
+    let mut s = tiles::SomolConfig {
+        tile_size: Some(128),
+        ..config
+    }
+    .settings(sample, None)
+    .unwrap();
+    s.tiles = count;
+    (
+        s.belt,
+        tiles::make_tile_set(sample, None, &s, &Silent).unwrap(),
+    )
+}
+
 #[test]
 fn the_template_s_stitches_pass_round_objects_wider_than_the_paper_s_band() {
     // Discs 21 px across at 128-px tiles: the paper's 12-px template overlap
@@ -1410,20 +1430,12 @@ fn the_template_s_stitches_pass_round_objects_wider_than_the_paper_s_band() {
     // stitches a band twice the belt too: its stitches pass between them.
     let sample = disc_sample(384, 10, 150, 4, 7);
     let template = |belt: Option<usize>| {
-        let mut s = tiles::SomolConfig {
-            tile_size: Some(128),
+        let config = tiles::SomolConfig {
             belt,
             ..Default::default()
-        }
-        .settings(&sample, None)
-        .unwrap();
-        s.tiles = 1;
-        let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
-        (
-            set.template.overlap,
-            s.belt,
-            sliced_share(&set.tiles[0], 10),
-        )
+        };
+        let (belt, set) = disc_set(&sample, config, 1);
+        (set.template.overlap, belt, sliced_share(&set.tiles[0], 10))
     };
     let (wide, belt, default) = template(None);
     assert!(belt > 24, "belt {belt}: not widened to the discs");
@@ -1441,17 +1453,12 @@ fn the_template_s_stitches_pass_round_objects_wider_than_the_paper_s_band() {
     // One placement, stitched at each band: the doubled band still slices
     // discs, twice the belt does not.
     let at = |overlap: usize| {
-        let mut s = tiles::SomolConfig {
-            tile_size: Some(128),
+        let config = tiles::SomolConfig {
             overlap: Some(overlap),
             template_candidates: 1,
             ..Default::default()
-        }
-        .settings(&sample, None)
-        .unwrap();
-        s.tiles = 1;
-        let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
-        sliced_share(&set.tiles[0], 10)
+        };
+        sliced_share(&disc_set(&sample, config, 1).1.tiles[0], 10)
     };
     let (doubled, objects) = (at(24), at(2 * belt));
     assert!(
@@ -1469,22 +1476,18 @@ fn derived_tiles_take_no_extra_patch_too_narrow_to_hold_an_object() {
     // extra patch still goes in (a 22-px interior), and it slices more.
     let sample = disc_sample(384, 10, 150, 4, 7);
     let set_with = |belt: Option<usize>| {
-        let mut s = tiles::SomolConfig {
-            tile_size: Some(128),
+        let config = tiles::SomolConfig {
             belt,
             ..Default::default()
-        }
-        .settings(&sample, None)
-        .unwrap();
-        s.tiles = 5;
-        let set = tiles::make_tile_set(&sample, None, &s, &Silent).unwrap();
+        };
+        let (belt, set) = disc_set(&sample, config, 5);
         let extras: usize = set.derived.iter().map(|d| d.extra.len()).sum();
         let sliced = set.tiles[1..]
             .iter()
             .map(|t| sliced_share(t, 10))
             .sum::<f64>()
             / (set.tiles.len() - 1) as f64;
-        (s.belt, extras, sliced)
+        (belt, extras, sliced)
     };
     let (belt, extras, wide) = set_with(None);
     assert!(belt > 21, "belt {belt}: not widened to the discs");
