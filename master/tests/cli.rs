@@ -1430,6 +1430,17 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
             &["--repeat-percent", "0", "--repeat-cap", "20"],
             &["--repeat-cap", "slack"],
         ),
+        (&["--lattice", "1x32"], &["--lattice", "at least 2"]),
+        (&["--lattice", "32"], &["--lattice", "WxH"]),
+        (&["--lattice", "axb"], &["--lattice", "not a number"]),
+        (
+            &["--lattice", "500x32"],
+            &["--lattice", "larger than the sample"],
+        ),
+        (
+            &["--lattice", "32x32", "--repeat-cap", "20"],
+            &["--lattice", "give one"],
+        ),
     ] {
         let args = [
             &["synth", s(&sample), "-o", s(&out), "--size", "96x96"][..],

@@ -477,3 +477,115 @@ fn the_patch_cap_cuts_large_patches_and_repeats_less() {
     }
     assert!(a.levels[1] != b.levels[1], "level 1 is capped");
 }
+
+/// A planted grid: `tiles`×`tiles` tiles of `period` px, each a flat colour
+/// of its own with a little grain, between 2-px light joints.
+fn grid_sample(period: usize, tiles: usize) -> ColorImage {
+    let side = period * tiles;
+    let hash = |a: usize, b: usize, c: usize| {
+        let mut h = (a as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ (b as u64 + 7).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+            ^ (c as u64 + 3).wrapping_mul(0x1656_67B1_9E37_79F9);
+        h ^= h >> 29;
+        h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        (h ^ (h >> 32)) as u8
+    };
+    let mut rgb = Vec::with_capacity(side * side * 3);
+    for y in 0..side {
+        for x in 0..side {
+            let joint = x % period < 2 || y % period < 2;
+            for ch in 0..3 {
+                let v = if joint {
+                    235 - hash(x, y, ch) % 8
+                } else {
+                    let base = 40 + hash(x / period, y / period, ch) % 150;
+                    base + hash(x, y, ch + 3) % 12
+                };
+                rgb.push(v);
+            }
+        }
+    }
+    ColorImage::from_vec(side, side, rgb)
+}
+
+/// The share of output pixels whose copy offset lies within a pixel of the
+/// most common offset modulo `period` on each axis: 1 for a grid that never
+/// slips.
+fn in_phase_share(out: &Output, period: usize) -> f64 {
+    let w = out.image.width;
+    let p = period as i64;
+    let phase = |k: usize| {
+        let [sx, sy] = out.copy_map[k];
+        [
+            ((k % w) as i64 - i64::from(sx)).rem_euclid(p),
+            ((k / w) as i64 - i64::from(sy)).rem_euclid(p),
+        ]
+    };
+    let mut counts = std::collections::HashMap::<[i64; 2], usize>::new();
+    for k in 0..out.copy_map.len() {
+        *counts.entry(phase(k)).or_default() += 1;
+    }
+    let (&mode, _) = counts.iter().max_by_key(|(k, &c)| (c, **k)).unwrap();
+    let near = |a: i64, b: i64| {
+        let d = (a - b).rem_euclid(p);
+        d.min(p - d) <= 1
+    };
+    let kept = (0..out.copy_map.len())
+        .filter(|&k| {
+            let ph = phase(k);
+            near(ph[0], mode[0]) && near(ph[1], mode[1])
+        })
+        .count();
+    kept as f64 / out.copy_map.len() as f64
+}
+
+/// The lattice rule (ARCHITECTURE §3.14) keeps a grid sample's grid: blocks
+/// inside a plain tile match anywhere in any tile, so without it the grid
+/// slips; with it nearly every output pixel keeps the grid's phase. The
+/// output is the same bytes over thread counts, and a wrong period is not
+/// what keeps the phase (the rule, not the sample, does it).
+#[test]
+fn the_lattice_rule_keeps_a_grid_sample_s_grid() {
+    let sample = grid_sample(16, 6);
+    let mode = Mode::Synth {
+        width: 192,
+        height: 192,
+        method: SynthMethod::Grow,
+    };
+    let free = Config {
+        stitch: texsyn::Stitch::Path,
+        ..Config::default()
+    };
+    let on_grid = Config {
+        lattice: Some(texsyn::block::Lattice {
+            period: [16.0, 16.0],
+        }),
+        ..free.clone()
+    };
+    let a = run(&sample, &mode, &free, 2);
+    let b = run(&sample, &mode, &on_grid, 2);
+    let (pa, pb) = (in_phase_share(&a, 16), in_phase_share(&b, 16));
+    eprintln!("in phase: {pa:.3} → {pb:.3}");
+    assert!(pb > 0.97, "the lattice rule keeps the grid: {pb}");
+    assert!(pa < pb - 0.05, "without it the grid slips: {pa} vs {pb}");
+    assert_copy_map_consistent(&b, &sample);
+    assert_eq!(
+        b.image,
+        run(&sample, &mode, &on_grid, 1).image,
+        "1 vs 2 threads"
+    );
+    // A period that is not the grid's (and not a multiple of it) keeps
+    // another phase, not this one.
+    let wrong = Config {
+        lattice: Some(texsyn::block::Lattice {
+            period: [23.0, 23.0],
+        }),
+        ..free.clone()
+    };
+    let pw = in_phase_share(&run(&sample, &mode, &wrong, 2), 16);
+    eprintln!("with a wrong period: {pw:.3}");
+    assert!(
+        pw < pb - 0.05,
+        "a wrong period does not keep the grid: {pw} vs {pb}"
+    );
+}

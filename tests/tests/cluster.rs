@@ -1209,4 +1209,8 @@ fn repetition_control_is_identical_over_threads_and_workers() {
     // batch's copy order.
     let cap_one = same_on_workers("cap", &["--repeat-cap", "20"]);
     assert!(cap_one != one, "the patch cap picks as the use counts do");
+    // The lattice rule (ARCHITECTURE §3.14) picks among the same near-tie
+    // lists by phase, on the master.
+    let lattice_one = same_on_workers("lattice", &["--lattice", "40x58"]);
+    assert!(lattice_one != plain, "the lattice rule changed nothing");
 }

@@ -4,6 +4,7 @@
 use anyhow::{ensure, Result};
 use texsyn_engine::{Geometry, Metric, Weights};
 
+use super::lattice::Lattice;
 use super::repeats::RepeatControl;
 use crate::imaging::{self, ColorImage};
 
@@ -98,6 +99,8 @@ pub struct Config {
     pub stitch: Stitch,
     /// Repetition control over the exact search's near-ties (`None` = off).
     pub repeats: Option<RepeatControl>,
+    /// Lattice phase: keep a grid sample's grid (`None` = off).
+    pub lattice: Option<Lattice>,
 }
 
 impl Default for Config {
@@ -117,6 +120,7 @@ impl Default for Config {
             colour_search: false,
             stitch: Stitch::Hard,
             repeats: None,
+            lattice: None,
         }
     }
 }
@@ -183,6 +187,10 @@ impl Config {
                 "--repeat-seam filters by the stitched seam's error and needs --stitch path"
             );
         }
+        ensure!(
+            self.lattice.is_none() || self.repeats.is_none(),
+            "--lattice and repetition control both pick among the near-ties; give one (--no-repeat-control turns the control off)"
+        );
         Weights::new(self.weights.hi, self.weights.lo)?;
         if let Some(r) = &self.repeats {
             r.validate()?;

@@ -9,6 +9,7 @@ use rayon::prelude::*;
 use texsyn_engine::{Geometry, Hit, Layout, Metric, Positions, QueryBatch, Slack};
 
 use super::canvas::{set_pixel, Canvas};
+use super::lattice;
 use super::neighbourhood::{candidates, query, Shape};
 use super::plan::LevelSample;
 use super::queue::BlockQueue;
@@ -136,6 +137,23 @@ pub(super) fn fill_level(
         .cfg
         .repeats
         .filter(|r| r.cap.is_none() || ctx.level < repeats::CAP_LEVELS);
+    // The lattice rule asks for near-ties as the control does, more of them.
+    let grid_rule = ctx.cfg.lattice;
+    let near_ties = control.or(grid_rule.map(|_| RepeatControl {
+        candidates: lattice::CANDIDATES,
+        percent: lattice::PERCENT,
+        ..RepeatControl::default()
+    }));
+    // The lattice runs through the offset of the first known pixel.
+    let origin = (0..canvas.defined.len())
+        .find(|&k| canvas.defined[k])
+        .map_or([0, 0], |k| {
+            let [sx, sy] = canvas.copy[k];
+            [
+                (k % canvas.width) as i64 - i64::from(sx),
+                (k / canvas.width) as i64 - i64::from(sy),
+            ]
+        });
     let known: Vec<([usize; 2], [u32; 2])> = match control {
         Some(_) => (0..canvas.defined.len())
             .filter(|&k| canvas.defined[k])
@@ -193,7 +211,7 @@ pub(super) fn fill_level(
         let chosen = &batcher.chosen;
         stats.query_seconds += t.elapsed().as_secs_f64();
         let (t, before) = (Instant::now(), texsyn_engine::Profile::now());
-        let lists = match &control {
+        let lists = match &near_ties {
             Some(r) => {
                 let slack: Vec<Slack> =
                     (0..batch.len()).map(|q| slack(ctx, r, &batch, q)).collect();
@@ -252,8 +270,17 @@ pub(super) fn fill_level(
                     (sides, costs)
                 })
             };
-            let hit = match (&usage, &offsets, &control) {
-                (_, Some(o), Some(_)) => {
+            let hit = match (&usage, &offsets, &control, &grid_rule) {
+                (_, _, _, Some(l)) => lattice::pick(hits, |h| {
+                    ctx.positions.get(h.index).map_or(u32::MAX, |p| {
+                        let offset = [
+                            centre[0] as i64 - i64::from(p[0]),
+                            centre[1] as i64 - i64::from(p[1]),
+                        ];
+                        l.phase_error(offset, origin, ctx.level)
+                    })
+                }),
+                (_, Some(o), Some(_), _) => {
                     let at_cap = |h: &Hit| {
                         ctx.positions
                             .get(h.index)
@@ -265,7 +292,7 @@ pub(super) fn fill_level(
                     picked_bands = seams.and_then(|(sides, _)| bands_of(hits, hit, sides));
                     hit
                 }
-                (Some(u), _, Some(r)) => {
+                (Some(u), _, Some(r), _) => {
                     let block_use = |h: &Hit| {
                         ctx.positions
                             .get(h.index)

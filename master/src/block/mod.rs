@@ -26,6 +26,7 @@ pub mod colour;
 mod config;
 mod fill;
 mod finish;
+mod lattice;
 mod level;
 pub mod neighbourhood;
 mod plan;
@@ -36,6 +37,7 @@ pub use config::{
     growth_neighbourhood, Config, FillSource, Mode, Position, Stitch, SynthMethod,
     MAX_CANVAS_PIXELS, PATH_GROWTH_NEIGHBOURHOOD,
 };
+pub use lattice::Lattice;
 pub use plan::resolve_levels;
 pub use repeats::RepeatControl;
 

@@ -315,6 +315,9 @@ fn checked_levels(mode: &Mode, sample: [usize; 2], cfg: &Config) -> Result<usize
     let [sw, sh] = sample;
     let n = cfg.neighbourhood;
     let levels = resolve_levels(sw, sh, cfg);
+    if let Some(l) = &cfg.lattice {
+        l.validate(sample)?;
+    }
     let (lw, lh) = pyramid::level_size(sw, sh, levels - 1);
     ensure!(
         lw >= n && lh >= n,

@@ -92,6 +92,16 @@ pub struct Common {
     /// `--repeat-percent 60` unless given); e.g. 25 with --neighbourhood 13.
     #[arg(long, value_name = "PERCENT")]
     pub repeat_cap: Option<u32>,
+    /// Lattice phase, for samples on a regular grid (tiles, mosaics,
+    /// stack-bond brick): the grid's period WxH in sample pixels (fractions
+    /// allowed, e.g. 32x32 or 31.5x32; for running-bond brick the brick's
+    /// length by two courses). Of the exact search's near-ties each block
+    /// takes the one whose copy offset keeps the grid's phase (within a
+    /// pixel), so tiles stay whole and joints line up. Deterministic, and the
+    /// same across threads and workers; cannot be combined with repetition
+    /// control.
+    #[arg(long, value_name = "WxH", value_parser = parse_lattice)]
+    pub lattice: Option<block::Lattice>,
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
     /// textures whose structure and colour disagree. Runs on this machine.
     #[arg(long)]
@@ -233,6 +243,26 @@ pub enum MethodArg {
     Parallel,
 }
 
+/// Parses `--lattice WxH`: two periods in pixels, fractions allowed.
+fn parse_lattice(s: &str) -> Result<block::Lattice> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .with_context(|| format!("--lattice '{s}' is not WxH, e.g. --lattice 32x32"))?;
+    let period = |name: &str, v: &str| -> Result<f64> {
+        let p: f64 = v.trim().parse().with_context(|| {
+            format!("--lattice '{s}': the {name} '{v}' is not a number, e.g. --lattice 32x32")
+        })?;
+        ensure!(
+            p.is_finite() && p >= 2.0,
+            "--lattice '{s}': the {name} {p} must be at least 2 pixels (one tile of the grid)"
+        );
+        Ok(p)
+    };
+    Ok(block::Lattice {
+        period: [period("width", w)?, period("height", h)?],
+    })
+}
+
 fn parse_weights(s: &str) -> Result<Weights> {
     let (a, b) = s
         .split_once(',')
@@ -321,6 +351,7 @@ pub fn config_with_defaults(
             Some(StitchArg::Path) => block::Stitch::Path,
         },
         repeats: repeats(c, d.repeats)?,
+        lattice: c.lattice,
     };
     cfg.validate()?;
     Ok(cfg)
