@@ -1432,6 +1432,7 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
         ),
         (&["--lattice", "1x32"], &["--lattice", "at least 2"]),
         (&["--lattice", "32"], &["--lattice", "WxH"]),
+        (&["--lattice", "0x0"], &["--lattice", "no phase"]),
         (&["--lattice", "axb"], &["--lattice", "not a number"]),
         (
             &["--lattice", "500x32"],

@@ -22,19 +22,29 @@ pub const CANDIDATES: usize = 32;
 /// Near-tie slack under the lattice rule, in percent of the best distance.
 pub const PERCENT: u32 = 300;
 
-/// The grid's periods along x and y, in sample pixels of the finest level.
+/// The grid's periods along x and y, in sample pixels of the finest level;
+/// 0 leaves that axis free (courses of brick whose joints along the course
+/// do not keep one period).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Lattice {
     pub period: [f64; 2],
 }
 
 impl Lattice {
-    /// Periods of at least 2 pixels and at most the sample's side.
+    /// Periods of at least 2 pixels and at most the sample's side, or 0 (that
+    /// axis free), not both 0.
     pub fn validate(&self, sample: [usize; 2]) -> Result<()> {
+        ensure!(
+            self.period != [0.0, 0.0],
+            "--lattice 0x0 keeps no phase; give the grid's period on at least one axis"
+        );
         for (axis, (&p, &side)) in ["width", "height"]
             .iter()
             .zip(self.period.iter().zip(&sample))
         {
+            if p == 0.0 {
+                continue;
+            }
             ensure!(
                 p.is_finite() && p >= 2.0,
                 "--lattice {axis} {p} must be at least 2 pixels (the grid's period: the distance from one joint to the next)"
@@ -53,6 +63,9 @@ impl Lattice {
     pub fn phase_error(&self, offset: [i64; 2], origin: [i64; 2], level: usize) -> u32 {
         let scale = f64::from(1u32 << level.min(30));
         let off_axis = |axis: usize| {
+            if self.period[axis] == 0.0 {
+                return 0.0;
+            }
             let p = self.period[axis] / scale;
             let d = ((offset[axis] - origin[axis]) as f64).rem_euclid(p);
             d.min(p - d)
@@ -100,7 +113,12 @@ mod tests {
             period: [32.0, 24.5],
         };
         assert!(ok.validate([256, 256]).is_ok());
-        for period in [[1.5, 32.0], [32.0, 300.0], [f64::NAN, 8.0]] {
+        assert!(Lattice {
+            period: [0.0, 29.0]
+        }
+        .validate([96, 96])
+        .is_ok());
+        for period in [[1.5, 32.0], [32.0, 300.0], [f64::NAN, 8.0], [0.0, 0.0]] {
             let e = Lattice { period }.validate([256, 256]).unwrap_err();
             assert!(e.to_string().contains("--lattice"), "{e}");
         }
@@ -131,6 +149,11 @@ mod tests {
             // period there is twice the finest period's lattice step.
             let l2 = Lattice { period: [f64::from(2 * px), f64::from(2 * py)] };
             prop_assert_eq!(l2.phase_error(at, origin, 1), e);
+            // A free axis counts nothing: only the other axis's error is left.
+            let rows = Lattice { period: [0.0, f64::from(py)] };
+            let dyp = (oy + dy - oy).rem_euclid(i64::from(py));
+            let ey = dyp.min(i64::from(py) - dyp) as u32;
+            prop_assert_eq!(rows.phase_error(at, origin, 0), ey);
         }
     }
 }

@@ -95,7 +95,8 @@ pub struct Common {
     /// Lattice phase, for samples on a regular grid (tiles, mosaics,
     /// stack-bond brick): the grid's period WxH in sample pixels (fractions
     /// allowed, e.g. 32x32 or 31.5x32; for running-bond brick the brick's
-    /// length by two courses). Of the exact search's near-ties each block
+    /// length by two courses, or 0x29 to keep only courses 29 px apart: 0
+    /// leaves an axis free). Of the exact search's near-ties each block
     /// takes the one whose copy offset keeps the grid's phase (within a
     /// pixel), so tiles stay whole and joints line up. Deterministic, and the
     /// same across threads and workers; cannot be combined with repetition
@@ -253,8 +254,8 @@ fn parse_lattice(s: &str) -> Result<block::Lattice> {
             format!("--lattice '{s}': the {name} '{v}' is not a number, e.g. --lattice 32x32")
         })?;
         ensure!(
-            p.is_finite() && p >= 2.0,
-            "--lattice '{s}': the {name} {p} must be at least 2 pixels (one tile of the grid)"
+            p == 0.0 || (p.is_finite() && p >= 2.0),
+            "--lattice '{s}': the {name} {p} must be at least 2 pixels (one tile of the grid), or 0 to leave that axis free"
         );
         Ok(p)
     };
