@@ -419,6 +419,21 @@ fn patch_sizes(out: &Output) -> std::collections::HashMap<[i64; 2], usize> {
     sizes
 }
 
+/// `synth` growth to 192×192 stitched by path, the setting the patch cap and
+/// the lattice tests compare against.
+fn grown_to_192() -> (Mode, Config) {
+    let mode = Mode::Synth {
+        width: 192,
+        height: 192,
+        method: SynthMethod::Grow,
+    };
+    let free = Config {
+        stitch: texsyn::Stitch::Path,
+        ..Config::default()
+    };
+    (mode, free)
+}
+
 /// The patch cap (ARCHITECTURE §3.13) bounds how much of the output one copy
 /// offset covers, so the output repeats the sample less: on a sample at twice
 /// its side, the share of pixels in patches over twice the cap falls, and so
@@ -429,15 +444,7 @@ fn the_patch_cap_cuts_large_patches_and_repeats_less() {
     use texsyn::block::RepeatControl;
     use texsyn::compare::repeat_share;
     let sample = texture("brick_color_96.png");
-    let mode = Mode::Synth {
-        width: 192,
-        height: 192,
-        method: SynthMethod::Grow,
-    };
-    let free = Config {
-        stitch: texsyn::Stitch::Path,
-        ..Config::default()
-    };
+    let (mode, free) = grown_to_192();
     let capped = Config {
         repeats: Some(RepeatControl {
             percent: 60,
@@ -547,15 +554,7 @@ fn in_phase_share(out: &Output, period: usize) -> f64 {
 #[test]
 fn the_lattice_rule_keeps_a_grid_sample_s_grid() {
     let sample = grid_sample(16, 6);
-    let mode = Mode::Synth {
-        width: 192,
-        height: 192,
-        method: SynthMethod::Grow,
-    };
-    let free = Config {
-        stitch: texsyn::Stitch::Path,
-        ..Config::default()
-    };
+    let (mode, free) = grown_to_192();
     let on_grid = Config {
         lattice: Some(texsyn::block::Lattice {
             period: [16.0, 16.0],
