@@ -7,10 +7,10 @@
 //! answers each query's near-ties (the same lists on every thread and worker
 //! count) and the master takes the one whose copy offset (canvas position
 //! less sample position) lies nearest the lattice through the offset of the
-//! pixels known before the search, in whole pixels of the level, then the
-//! nearer, then the lower index. Offsets within a pixel of the lattice count
-//! as on it, so a photo's grid that drifts by a fraction of a pixel per tile
-//! still has every tile to choose from.
+//! pixels known before the search (in tenths of a pixel of the level), then
+//! the nearer, then the lower index. A period need not be whole: on a photo's
+//! 31.6-px grid a tolerance of a pixel let neighbouring blocks take offsets a
+//! pixel apart, and the joints wobbled.
 
 use anyhow::{ensure, Result};
 use texsyn_engine::Hit;
@@ -57,9 +57,9 @@ impl Lattice {
         Ok(())
     }
 
-    /// How far, in whole pixels of `level` (0 = finest), the copy `offset`
-    /// lies from the lattice through `origin` (both canvas position less
-    /// sample position on that level): 0 within a pixel.
+    /// How far, in tenths of a pixel of `level` (0 = finest), the copy
+    /// `offset` lies from the lattice through `origin` (both canvas position
+    /// less sample position on that level), rounded.
     pub fn phase_error(&self, offset: [i64; 2], origin: [i64; 2], level: usize) -> u32 {
         let scale = f64::from(1u32 << level.min(30));
         let off_axis = |axis: usize| {
@@ -71,7 +71,7 @@ impl Lattice {
             d.min(p - d)
         };
         let (ex, ey) = (off_axis(0), off_axis(1));
-        (ex * ex + ey * ey).sqrt().floor() as u32
+        (10.0 * (ex * ex + ey * ey).sqrt()).round() as u32
     }
 }
 
@@ -143,8 +143,8 @@ mod tests {
             let e = l.phase_error(at, origin, 0);
             prop_assert_eq!(e, l.phase_error(shifted, origin, 0));
             prop_assert_eq!(e, l.phase_error([ox - dx, oy - dy], origin, 0));
-            let bound = ((dx * dx + dy * dy) as f64).sqrt();
-            prop_assert!(f64::from(e) <= bound + 1e-9);
+            let bound = 10.0 * ((dx * dx + dy * dy) as f64).sqrt();
+            prop_assert!(f64::from(e) <= bound.round() + 1e-9);
             // One level coarser the periods halve: an offset of twice the
             // period there is twice the finest period's lattice step.
             let l2 = Lattice { period: [f64::from(2 * px), f64::from(2 * py)] };
@@ -152,7 +152,7 @@ mod tests {
             // A free axis counts nothing: only the other axis's error is left.
             let rows = Lattice { period: [0.0, f64::from(py)] };
             let dyp = (oy + dy - oy).rem_euclid(i64::from(py));
-            let ey = dyp.min(i64::from(py) - dyp) as u32;
+            let ey = 10 * dyp.min(i64::from(py) - dyp) as u32;
             prop_assert_eq!(rows.phase_error(at, origin, 0), ey);
         }
     }

@@ -97,8 +97,8 @@ pub struct Common {
     /// allowed, e.g. 32x32 or 31.5x32; for running-bond brick the brick's
     /// length by two courses, or 0x29 to keep only courses 29 px apart: 0
     /// leaves an axis free). Of the exact search's near-ties each block
-    /// takes the one whose copy offset keeps the grid's phase (within a
-    /// pixel), so tiles stay whole and joints line up. Deterministic, and the
+    /// takes the one whose copy offset lies nearest the grid's phase, so
+    /// tiles stay whole and joints line up. Deterministic, and the
     /// same across threads and workers; cannot be combined with repetition
     /// control.
     #[arg(long, value_name = "WxH", value_parser = parse_lattice)]
