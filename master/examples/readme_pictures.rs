@@ -60,8 +60,8 @@ fn main() -> Result<()> {
     let tex = root.join("assets/textures");
     let docs = root.join("docs");
     std::fs::create_dir_all(&docs)?;
-    // Names on the command line (fill, extend, synth, tiles, omega, morph,
-    // replay, solid) make only those pictures.
+    // Names on the command line (fill, extend, synth, lattice, tiles, omega,
+    // morph, replay, solid) make only those pictures.
     let only: Vec<String> = std::env::args().skip(1).collect();
     let want = |name: &str| only.is_empty() || only.iter().any(|o| o == name);
 
@@ -129,6 +129,32 @@ fn main() -> Result<()> {
         }
         let refs: Vec<&ColorImage> = row.iter().collect();
         imaging::save_color(&docs.join("synth.png"), &side_by_side(&refs))?;
+    }
+    if want("lattice") {
+        println!("synth --lattice: coloured tiles, without and with the lattice rule");
+        let sample = imaging::load_color(&tex.join("tiles_color_256.png"))?;
+        let mode = Mode::Synth {
+            width: 384,
+            height: 384,
+            method: SynthMethod::Grow,
+        };
+        let free = Config {
+            stitch: Stitch::Path,
+            neighbourhood: growth_neighbourhood([sample.width, sample.height], 0),
+            ..Config::default()
+        };
+        let on_grid = Config {
+            lattice: Some(texsyn::block::Lattice {
+                period: [32.0, 32.0],
+            }),
+            ..free.clone()
+        };
+        let plain = run(&sample, mode.clone(), free)?;
+        let kept = run(&sample, mode, on_grid)?;
+        imaging::save_color(
+            &docs.join("lattice.png"),
+            &side_by_side(&[&sample, &plain, &kept]),
+        )?;
     }
     if want("tiles") {
         println!("tiles: coffee beans, one tile against eight (the paper's Fig. 10 index)");
