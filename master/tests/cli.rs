@@ -1589,6 +1589,10 @@ fn parallel_seven_defaults_to_eight_candidates_and_five_passes_and_half_to_reduc
             (&["--method", "parallel", "--k", "0"], "1..=16"),
             (&["--method", "parallel", "--k", "17"], "1..=16"),
             (&["--k", "4"], "belongs to --method parallel"),
+            (
+                &["--method", "parallel", "--lattice", "32x32"],
+                "--lattice belongs to the block method",
+            ),
         ],
     );
 }

@@ -343,6 +343,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         ("--repeat-percent", c.repeat_percent.is_some()),
         ("--repeat-seam", c.repeat_seam.is_some()),
         ("--repeat-cap", c.repeat_cap.is_some()),
+        ("--lattice", c.lattice.is_some()),
         ("--no-repeat-control", c.no_repeat_control),
         ("--levels-dir", c.levels_dir.is_some()),
         ("--report", c.report.is_some()),
