@@ -26,6 +26,22 @@ fn run(sample: &ColorImage, mode: Mode, cfg: Config) -> Result<ColorImage> {
     Ok(out.image)
 }
 
+/// `texsyn synth`'s growth to `side`² with its defaults: path stitching,
+/// N = 13 where the coarsest level holds it.
+fn grown(sample: &ColorImage, side: usize) -> (Mode, Config) {
+    let mode = Mode::Synth {
+        width: side,
+        height: side,
+        method: SynthMethod::Grow,
+    };
+    let cfg = Config {
+        stitch: Stitch::Path,
+        neighbourhood: growth_neighbourhood([sample.width, sample.height], 0),
+        ..Config::default()
+    };
+    (mode, cfg)
+}
+
 /// Pictures side by side on a white background, 8 px apart, top-aligned.
 fn side_by_side(images: &[&ColorImage]) -> ColorImage {
     let gap = 8;
@@ -109,21 +125,8 @@ fn main() -> Result<()> {
         let mut row = Vec::new();
         for name in ["leaves_green_color_161.png", "pink_marble_color_128.png"] {
             let sample = imaging::load_color(&tex.join(name))?;
-            let out = run(
-                &sample,
-                Mode::Synth {
-                    width: 320,
-                    height: 320,
-                    method: SynthMethod::Grow,
-                },
-                // `texsyn synth`'s defaults: path stitching, N = 13 where
-                // the coarsest level holds it.
-                Config {
-                    stitch: Stitch::Path,
-                    neighbourhood: growth_neighbourhood([sample.width, sample.height], 0),
-                    ..Config::default()
-                },
-            )?;
+            let (mode, cfg) = grown(&sample, 320);
+            let out = run(&sample, mode, cfg)?;
             row.push(sample);
             row.push(out);
         }
@@ -133,16 +136,7 @@ fn main() -> Result<()> {
     if want("lattice") {
         println!("synth --lattice: coloured tiles, without and with the lattice rule");
         let sample = imaging::load_color(&tex.join("tiles_color_256.png"))?;
-        let mode = Mode::Synth {
-            width: 384,
-            height: 384,
-            method: SynthMethod::Grow,
-        };
-        let free = Config {
-            stitch: Stitch::Path,
-            neighbourhood: growth_neighbourhood([sample.width, sample.height], 0),
-            ..Config::default()
-        };
+        let (mode, free) = grown(&sample, 384);
         let on_grid = Config {
             lattice: Some(texsyn::block::Lattice {
                 period: [32.0, 32.0],

@@ -145,8 +145,8 @@ pub(super) fn fill_level(
         ..RepeatControl::default()
     }));
     // The lattice runs through the offset of the first known pixel.
-    let origin = (0..canvas.defined.len())
-        .find(|&k| canvas.defined[k])
+    let origin = grid_rule
+        .and_then(|_| (0..canvas.defined.len()).find(|&k| canvas.defined[k]))
         .map_or([0, 0], |k| {
             let [sx, sy] = canvas.copy[k];
             [

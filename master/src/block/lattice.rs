@@ -47,7 +47,7 @@ impl Lattice {
             }
             ensure!(
                 p.is_finite() && p >= 2.0,
-                "--lattice {axis} {p} must be at least 2 pixels (the grid's period: the distance from one joint to the next)"
+                "--lattice {axis} {p} must be at least 2 pixels (the grid's period: the distance from one joint to the next), or 0 to leave that axis free"
             );
             ensure!(
                 p <= side as f64,

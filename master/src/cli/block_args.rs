@@ -249,15 +249,11 @@ fn parse_lattice(s: &str) -> Result<block::Lattice> {
     let (w, h) = s
         .split_once(['x', 'X'])
         .with_context(|| format!("--lattice '{s}' is not WxH, e.g. --lattice 32x32"))?;
+    // The periods' range is checked with the sample (`Lattice::validate`).
     let period = |name: &str, v: &str| -> Result<f64> {
-        let p: f64 = v.trim().parse().with_context(|| {
+        v.trim().parse().with_context(|| {
             format!("--lattice '{s}': the {name} '{v}' is not a number, e.g. --lattice 32x32")
-        })?;
-        ensure!(
-            p == 0.0 || (p.is_finite() && p >= 2.0),
-            "--lattice '{s}': the {name} {p} must be at least 2 pixels (one tile of the grid), or 0 to leave that axis free"
-        );
-        Ok(p)
+        })
     };
     Ok(block::Lattice {
         period: [period("width", w)?, period("height", h)?],
