@@ -2,7 +2,8 @@
 //! threads do not change a byte, slices and preview are the volume's voxels,
 //! one isotropic exemplar on all three axes gives faces like it on all six
 //! faces and the centre slices, a ramp morphs one material into the other,
-//! replay reproduces the solid, and bad input is refused with the fix named.
+//! replay reproduces the solid, streaks along the anti-diagonal survive as
+//! mirrored views, and bad input is refused with the fix named.
 
 use crate::common;
 
@@ -12,6 +13,7 @@ use common::{ok, refused, s};
 use texsyn::compare::spectrum_similarity;
 use texsyn::imaging::volume::{Axis, Volume};
 use texsyn::imaging::{self, ColorImage};
+use texsyn::parallel::solid::mirror;
 
 fn marble() -> PathBuf {
     common::assets().join("pink_marble_color_128.png")
@@ -459,4 +461,58 @@ fn bad_input_is_refused_with_the_fix_named() {
         .concat(),
     );
     assert!(e.contains("is not a volume header"), "{e}");
+}
+
+/// The centre slices' gradient correlations, read from `slices/` (where a
+/// mirrored view's slices are written back in its exemplar's frame).
+fn slice_correlations(dir: &Path, n: usize) -> Vec<f64> {
+    Axis::ALL
+        .into_iter()
+        .map(|axis| {
+            let p = dir.join(format!("slices/{}_{:04}.png", axis.name(), n / 2));
+            mirror::gradient_correlation(&imaging::load_color(&p).unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn streaks_along_the_anti_diagonal_survive_as_mirrored_views() {
+    // rain_color_108's streaks run down to the right (gradient correlation
+    // −0.70): three such views have no solid, and plain they come out as
+    // clouds. Mirrored, every centre slice keeps streaks along the
+    // exemplar's own diagonal.
+    let rain = common::assets().join("rain_color_108.png");
+    assert!(mirror::gradient_correlation(&imaging::load_color(&rain).unwrap()) < -0.6);
+    let view = format!("xyz={}", s(&rain));
+    let args = ["--view", &view, "--size", "40", "--slices", "all"];
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let v = solid(a.path(), &args);
+    let header = std::fs::read_to_string(a.path().join("solid.json")).unwrap();
+    assert!(header.contains(r#""mirrored_views": ["#), "{header}");
+    for (axis, rho) in Axis::ALL.into_iter().zip(slice_correlations(a.path(), 40)) {
+        assert!(
+            rho < -0.3,
+            "mirrored: the centre slice across {} has ρ {rho:.2}",
+            axis.name()
+        );
+        // Written back: the file is the volume's slice mirrored top to bottom.
+        let p = a.path().join(format!("slices/{}_0020.png", axis.name()));
+        assert!(imaging::load_color(&p).unwrap() == mirror::flipped(&v.slice_rgb(axis, 20)));
+    }
+    solid(b.path(), &[&args[..], &["--no-mirror"]].concat());
+    for (axis, rho) in Axis::ALL.into_iter().zip(slice_correlations(b.path(), 40)) {
+        assert!(
+            rho > -0.25,
+            "as given: the centre slice across {} has ρ {rho:.2}",
+            axis.name()
+        );
+    }
+    // A view that needs no mirror (marble's ρ is +0.17) gives the same bytes
+    // either way.
+    let view = format!("xyz={}", s(&marble()));
+    let args = ["--view", &view, "--size", "16"];
+    let (c, d) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let plain = solid(c.path(), &args);
+    let kept = solid(d.path(), &[&args[..], &["--no-mirror"]].concat());
+    assert!(plain.data == kept.data);
 }

@@ -68,6 +68,13 @@ pub struct SolidArgs {
     /// change).
     #[arg(long)]
     pub no_checker_cap: bool,
+    /// Keep every view as given: by default, where the three views of one
+    /// material cannot agree (their gradient correlations, streaks along the
+    /// exemplar's anti-diagonal on all three, have no solid), one view's
+    /// exemplar is mirrored top to bottom and its slices are written back
+    /// in the exemplar's frame.
+    #[arg(long)]
+    pub no_mirror: bool,
     /// Morph the materials along a ramp across x, y or z: material 1 at the
     /// start, the last at the end.
     #[arg(long, conflicts_with = "weight_volumes")]
@@ -239,6 +246,7 @@ impl TryFrom<&SolidArgs> for SolidJob {
                 index_histogram: a.index_histogram,
                 band_matching: a.band_matching,
                 checker_cap: !a.no_checker_cap,
+                mirror: !a.no_mirror,
             },
             weights,
             slices: parse_slices(&a.slices)?,

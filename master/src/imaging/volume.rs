@@ -228,11 +228,17 @@ impl Volume {
         Ok((v, h))
     }
 
-    /// Writes every slice across `axis` into `dir` as `AXIS_NNNN.png`.
-    pub fn save_slices(&self, dir: &Path, axis: Axis) -> Result<()> {
+    /// Writes every slice across `axis` into `dir` as `AXIS_NNNN.png`, each
+    /// mirrored top to bottom with `flip_rows` (a mirrored view's slices,
+    /// written back in its exemplar's frame).
+    pub fn save_slices(&self, dir: &Path, axis: Axis, flip_rows: bool) -> Result<()> {
         for at in 0..self.size[axis.index()] {
             let p = dir.join(format!("{}_{at:04}.png", axis.name()));
-            let (w, h, bytes) = self.slice(axis, at);
+            let (w, h, mut bytes) = self.slice(axis, at);
+            if flip_rows {
+                let row = w * self.channels;
+                bytes = bytes.chunks_exact(row).rev().flatten().copied().collect();
+            }
             if self.channels == 1 {
                 super::save_gray(&p, &Gray::from_vec(w, h, bytes))?;
             } else {

@@ -171,7 +171,24 @@ impl SolidJob {
             view_image.push(k);
         }
         let weights = self.load_weights()?;
-        let replay_maps = self.load_replays(|j| &files[view_image[j]].1)?;
+        let mut replay_maps = self.load_replays(|j| &files[view_image[j]].1)?;
+        let mirrored = if self.settings.mirror {
+            self.views_to_mirror(|j| &files[view_image[j]].1)
+        } else {
+            Vec::new()
+        };
+        for &j in &mirrored {
+            let flipped = super::mirror::flipped(&files[view_image[j]].1);
+            files.push((self.views[j].path.clone(), flipped));
+            view_image[j] = files.len() - 1;
+            for (_, _, maps) in &mut replay_maps {
+                maps[j] = super::mirror::flipped(&maps[j]);
+            }
+            tracing::info!(
+                axis = %self.views[j].axis.name(),
+                "the view across this axis runs along its anti-diagonal; mirrored"
+            );
+        }
         let views: Vec<View> = self
             .views
             .iter()
@@ -193,14 +210,15 @@ impl SolidJob {
         )?;
         let seconds = t.elapsed().as_secs_f64();
         tracing::info!(seconds, levels = out.levels, "solid done");
-        let info = self.info(&out, seconds);
+        let mirrored_axes: Vec<Axis> = mirrored.iter().map(|&j| self.views[j].axis).collect();
+        let info = self.info(&out, seconds, &mirrored_axes);
         let colour = Volume::new(self.size, 3, std::mem::take(&mut out.colour))?;
         write_volume(&colour, &dir, "solid", "preview.png", &info)?;
         if !self.slices.is_empty() {
             let slice_dir = dir.join("slices");
             std::fs::create_dir_all(&slice_dir)?;
             for axis in &self.slices {
-                colour.save_slices(&slice_dir, *axis)?;
+                colour.save_slices(&slice_dir, *axis, mirrored_axes.contains(axis))?;
             }
         }
         for (name, channels, maps) in &replay_maps {
@@ -266,8 +284,25 @@ impl SolidJob {
         Ok(out)
     }
 
+    /// The views to mirror ([`super::mirror`]), given each view's
+    /// exemplar: only for one material seen once across each axis it is
+    /// seen across.
+    fn views_to_mirror<'a>(&self, exemplar: impl Fn(usize) -> &'a ColorImage) -> Vec<usize> {
+        let mut seen = [false; 3];
+        let once = self
+            .views
+            .iter()
+            .all(|v| !std::mem::replace(&mut seen[v.axis.index()], true));
+        if self.materials() != 1 || !once {
+            return Vec::new();
+        }
+        (0..self.views.len())
+            .filter(|&j| super::mirror::to_mirror(super::mirror::gradient_correlation(exemplar(j))))
+            .collect()
+    }
+
     /// The header's description of the run.
-    fn info(&self, out: &Solid, seconds: f64) -> serde_json::Value {
+    fn info(&self, out: &Solid, seconds: f64, mirrored: &[Axis]) -> serde_json::Value {
         let s = &self.settings;
         serde_json::json!({
             "method": "solid (Manke–Wünsche §5)",
@@ -284,6 +319,7 @@ impl SolidJob {
             "index_histogram": s.index_histogram,
             "band_matching": s.band_matching,
             "checker_cap": s.checker_cap,
+            "mirrored_views": mirrored.iter().map(|a| a.name().to_string()).collect::<Vec<_>>(),
             "seed": s.base.seed,
             "levels": out.levels,
             "appearance_components": out.dims,

@@ -34,6 +34,7 @@ use crate::search::SearchBackend;
 mod bands;
 mod job;
 mod lattice;
+pub mod mirror;
 #[cfg(test)]
 mod tests;
 mod weights;
@@ -304,6 +305,9 @@ pub struct SolidSettings {
     /// Cap the band-matched colour's pixel checker at the exemplars'
     /// ([`bands::cap_checker`]; only with band matching).
     pub checker_cap: bool,
+    /// Mirror one view where the three views of one material cannot agree
+    /// as they are ([`mirror`]; the job does it, reading the files).
+    pub mirror: bool,
 }
 
 /// Default weight of the index histogram matching (ARCHITECTURE §11): on
@@ -336,6 +340,7 @@ impl Default for SolidSettings {
             index_histogram: INDEX_HISTOGRAM,
             band_matching: BAND_MATCHING,
             checker_cap: true,
+            mirror: true,
         }
     }
 }
