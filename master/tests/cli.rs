@@ -1554,7 +1554,7 @@ fn parallel_five_takes_nine_guarded_passes_and_the_finest_level_its_own() {
 }
 
 #[test]
-fn parallel_seven_defaults_to_eight_candidates_and_five_passes_and_half_to_reduced_s_recipe() {
+fn parallel_seven_and_half_take_eight_candidates_and_reduced_its_fine_passes() {
     let dir = tempfile::tempdir().unwrap();
     let sample = assets().join("brick_color_96.png");
     let run = |name: &str, extra: &[&str]| parallel_synth(dir.path(), &sample, name, extra);
@@ -1576,11 +1576,23 @@ fn parallel_seven_defaults_to_eight_candidates_and_five_passes_and_half_to_reduc
     assert!(reduced == run("reduced-spelled", &spelled));
     assert!(reduced != run("reduced-flat", &["--passes", "4"]));
     assert!(reduced != run("reduced-jitter", &["--jitter", "1,0.8,0.6,0.4"]));
-    // So does half.
+    // So does half, with 8 candidates and 8 passes at every level.
     let half = ["--neighbourhood", "half"];
     let half_default = run("half", &half);
-    assert!(half_default == run("half-spelled", &[&half[..], &spelled].concat()));
-    assert!(half_default != run("half-flat", &[&half[..], &["--passes", "4"]].concat()));
+    let half_spelled = [
+        &half[..],
+        &["--k", "8", "--passes", "8", "--fine-passes", "8"],
+        &["--jitter", "1,0.8,0.5,0.3", "--copy-guard", "0.08"],
+    ]
+    .concat();
+    assert!(half_default == run("half-spelled", &half_spelled));
+    assert!(
+        half_default
+            != run(
+                "half-before",
+                &[&half[..], &spelled, &["--k", "4"]].concat()
+            )
+    );
     assert!(half_default != reduced);
     synth_refused(
         dir.path(),

@@ -44,12 +44,14 @@ fn a_morph_of_one_exemplar_under_weight_one_is_the_parallel_synthesis() {
     let dir = tempfile::tempdir().unwrap();
     let d = |f: &str| dir.path().join(f);
     let sample = common::assets().join("pink_marble_color_128.png");
-    // The same passes and no copy guard for both: `morph` keeps the paper's
-    // 2 passes and no guard by default where `synth` gives `half` 4 passes,
-    // 8 at the finest level and a guard.
+    // The same passes, k and no copy guard for both: `morph` keeps the
+    // paper's 2 passes, 4 candidates and no guard by default where `synth`
+    // gives `half` 8 passes, 8 candidates and a guard.
     let settings = [
         "--neighbourhood",
         "half",
+        "--k",
+        "4",
         "--jitter",
         "0.5",
         "--seed",

@@ -198,7 +198,8 @@ pub struct SynthArgs {
     #[arg(long)]
     pub correct_every_level: bool,
     /// --method parallel: correction passes per level (1 to 64; default 5
-    /// for --neighbourhood 7, 9 for 5, 4 for the others; the paper's is 2).
+    /// for --neighbourhood 7, 9 for 5, 8 for half, 4 for reduced; the
+    /// paper's is 2).
     #[arg(long)]
     pub passes: Option<usize>,
     /// --method parallel: correction passes of the finest level (1 to 64;
@@ -212,7 +213,7 @@ pub struct SynthArgs {
     #[arg(long)]
     pub copy_guard: Option<f32>,
     /// --method parallel: k of the k-coherence candidate sets (1 to 16;
-    /// default 8 for --neighbourhood 7, 4 for the others).
+    /// default 8 for --neighbourhood 7 and half, 4 for the others).
     #[arg(long)]
     pub k: Option<usize>,
     /// --method parallel: coherence weight c ≥ 0 of the correction's choice

@@ -97,7 +97,7 @@ impl ParallelSettings {
             coherence: default_coherence(n),
             copy_guard: default_copy_guard(n, morph),
             jitter: default_jitter(n, morph).to_vec(),
-            k: default_k(n),
+            k: default_k(n, morph),
             ..Self::default()
         }
     }
@@ -183,14 +183,16 @@ pub const DEFAULT_HISTOGRAM: f32 = 1.0;
 /// to 256² at 2× their side the median fidelity ratio
 /// to the block method fell from 1.50 (2 passes) to 1.37 (`reduced`); a
 /// morph (`morph`) keeps the paper's 2, which keeps a cached 512² morph
-/// under 2 and 3 s.
+/// under 2 and 3 s. `half` takes 8 in a synthesis, with 8 candidates
+/// ([`default_k`]).
 pub fn default_passes(n: Neighbourhood, morph: bool) -> usize {
     match n {
         Neighbourhood::Full(7) => 5,
         Neighbourhood::Full(5) if !morph => 9,
         Neighbourhood::Full(_) => 4,
         Neighbourhood::Reduced | Neighbourhood::Half if morph => 2,
-        Neighbourhood::Reduced | Neighbourhood::Half => 4,
+        Neighbourhood::Half => 8,
+        Neighbourhood::Reduced => 4,
     }
 }
 
@@ -239,12 +241,21 @@ pub fn default_copy_guard(n: Neighbourhood, morph: bool) -> Option<f32> {
 /// candidates apart finely enough that more of them pay: on the 22 samples
 /// up to 256² at 2× their side (4 passes) its patch fidelity came within
 /// 1.3× of the block method's on 17 (16 with k = 4, brick 256 1.38 → 1.19)
-/// for about 1.5× the time, and with [`default_passes`]' 5 on 19. 4, the
-/// paper's order, for the others, where 8 did not help (`reduced` 4 of 22
-/// against 3, 5×5 11 against 12).
-pub fn default_k(n: Neighbourhood) -> usize {
+/// for about 1.5× the time, and with [`default_passes`]' 5 on 19. 8 for
+/// `half` in a synthesis, with 8 passes at every level: its nine points
+/// tell the larger set apart too, and the passes settle what the larger
+/// set offers (on the same 22 samples, within 1.3× on 15 against 10 with
+/// `k` = 4 and 4 passes, median ratio 1.306 → 1.242, S_L within 1.3× on 20
+/// as before, largest `copy_share` 0.066, for about 1.3× the time; `k` = 8
+/// alone gave 13, 6 passes 15 at a median of 1.270, 10 passes 15 at
+/// 1.229; `k` = 12 or 16 with 4 passes 10 and 11). 4, the paper's order,
+/// for the others and for a morph (whose cached 512² run stays within its
+/// time), where 8 did not help (`reduced` 6 of 22 against 7, 7 with 8
+/// passes; 5×5 11 against 12).
+pub fn default_k(n: Neighbourhood, morph: bool) -> usize {
     match n {
         Neighbourhood::Full(7) => 8,
+        Neighbourhood::Half if !morph => 8,
         _ => 4,
     }
 }
