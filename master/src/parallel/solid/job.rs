@@ -285,15 +285,15 @@ impl SolidJob {
     }
 
     /// The views to mirror ([`super::mirror`]), given each view's
-    /// exemplar: only for one material seen once across each axis it is
-    /// seen across.
+    /// exemplar: only for one material seen once across each of x, y and z
+    /// (one or two views can always agree).
     fn views_to_mirror<'a>(&self, exemplar: impl Fn(usize) -> &'a ColorImage) -> Vec<usize> {
         let mut seen = [false; 3];
         let once = self
             .views
             .iter()
             .all(|v| !std::mem::replace(&mut seen[v.axis.index()], true));
-        if self.materials() != 1 || !once {
+        if self.materials() != 1 || self.views.len() != 3 || !once {
             return Vec::new();
         }
         (0..self.views.len())
