@@ -272,6 +272,11 @@ pub enum ImageIoError {
 
 /// Rejects a 0-sized image and one over [`MAX_SIDE`] per side or [`MAX_PIXELS`]
 /// in total; `what` names the image in the message (e.g. "canvas").
+/// Rows of `row` bytes in reverse order: an image mirrored top to bottom.
+pub fn rows_reversed(bytes: &[u8], row: usize) -> Vec<u8> {
+    bytes.chunks_exact(row).rev().flatten().copied().collect()
+}
+
 pub fn check_size(width: usize, height: usize, what: &str) -> anyhow::Result<()> {
     check_size_impl(width, height, what).map_err(Into::into)
 }

@@ -237,7 +237,7 @@ impl Volume {
             let (w, h, mut bytes) = self.slice(axis, at);
             if flip_rows {
                 let row = w * self.channels;
-                bytes = bytes.chunks_exact(row).rev().flatten().copied().collect();
+                bytes = super::rows_reversed(&bytes, row);
             }
             if self.channels == 1 {
                 super::save_gray(&p, &Gray::from_vec(w, h, bytes))?;

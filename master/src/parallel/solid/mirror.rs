@@ -62,8 +62,7 @@ pub fn to_mirror(rho: f64) -> bool {
 
 /// `img` mirrored top to bottom.
 pub fn flipped(img: &ColorImage) -> ColorImage {
-    let row = img.width * 3;
-    let rgb = img.rgb.chunks_exact(row).rev().flatten().copied().collect();
+    let rgb = crate::imaging::rows_reversed(&img.rgb, img.width * 3);
     ColorImage::from_vec(img.width, img.height, rgb)
 }
 
