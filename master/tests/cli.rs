@@ -1571,11 +1571,16 @@ fn parallel_seven_and_half_take_eight_candidates_and_reduced_its_fine_passes() {
     let spelled = [
         &["--passes", "4", "--fine-passes", "8"][..],
         &["--jitter", "1,0.8,0.5,0.3", "--copy-guard", "0.08"],
+        &["--coarse-neighbourhood", "7", "--coarse-passes", "16"],
     ]
     .concat();
     assert!(reduced == run("reduced-spelled", &spelled));
     assert!(reduced != run("reduced-flat", &["--passes", "4"]));
     assert!(reduced != run("reduced-jitter", &["--jitter", "1,0.8,0.6,0.4"]));
+    // Its levels above the finest take the 7×7 neighbourhood.
+    let one = ["--coarse-neighbourhood", "same"];
+    assert!(reduced != run("reduced-same", &one));
+    assert!(reduced != run("reduced-coarse-8", &["--coarse-passes", "8"]));
     // So does half, with 8 candidates and 8 passes at every level.
     let half = ["--neighbourhood", "half"];
     let half_default = run("half", &half);
@@ -1583,6 +1588,7 @@ fn parallel_seven_and_half_take_eight_candidates_and_reduced_its_fine_passes() {
         &half[..],
         &["--k", "8", "--passes", "8", "--fine-passes", "8"],
         &["--jitter", "1,0.8,0.5,0.3", "--copy-guard", "0.08"],
+        &["--coarse-neighbourhood", "7", "--coarse-passes", "16"],
     ]
     .concat();
     assert!(half_default == run("half-spelled", &half_spelled));
@@ -1601,6 +1607,37 @@ fn parallel_seven_and_half_take_eight_candidates_and_reduced_its_fine_passes() {
             (&["--method", "parallel", "--k", "0"], "1..=16"),
             (&["--method", "parallel", "--k", "17"], "1..=16"),
             (&["--k", "4"], "belongs to --method parallel"),
+            (
+                &["--coarse-neighbourhood", "7"],
+                "belongs to --method parallel",
+            ),
+            (
+                &["--method", "parallel", "--coarse-neighbourhood", "9"],
+                "not one of reduced, half, 5, 7 or same",
+            ),
+            (&["--method", "parallel", "--coarse-passes", "0"], "1..=64"),
+            (
+                &[
+                    "--method",
+                    "parallel",
+                    "--coarse-neighbourhood",
+                    "same",
+                    "--coarse-passes",
+                    "8",
+                ],
+                "--coarse-neighbourhood 7",
+            ),
+            (
+                &[
+                    "--method",
+                    "parallel",
+                    "--neighbourhood",
+                    "7",
+                    "--coarse-passes",
+                    "8",
+                ],
+                "--coarse-neighbourhood 7",
+            ),
             (
                 &["--method", "parallel", "--lattice", "32x32"],
                 "--lattice belongs to the block method",

@@ -44,10 +44,13 @@ fn a_morph_of_one_exemplar_under_weight_one_is_the_parallel_synthesis() {
     let dir = tempfile::tempdir().unwrap();
     let d = |f: &str| dir.path().join(f);
     let sample = common::assets().join("pink_marble_color_128.png");
-    // The same passes, k and no copy guard for both: `morph` keeps the
-    // paper's 2 passes, 4 candidates and no guard by default where `synth`
-    // gives `half` 8 passes, 8 candidates and a guard.
+    // The same passes, k, levels and no copy guard for both: `morph` keeps
+    // the paper's 2 passes, 4 candidates, one neighbourhood and no guard by
+    // default where `synth` gives `half` 8 passes, 8 candidates, 7×7
+    // coarse levels and a guard.
     let settings = [
+        "--coarse-neighbourhood",
+        "same",
         "--neighbourhood",
         "half",
         "--k",
@@ -519,4 +522,49 @@ fn a_candidate_cache_is_filled_once_and_changes_no_byte() {
         e.contains("--candidate-cache belongs to --method parallel"),
         "{e}"
     );
+}
+
+/// The coarse levels' own 7×7 neighbourhood (ARCHITECTURE §10) lays out a
+/// grid sample's tiles, which the reduced and half neighbourhoods' few
+/// averaged points cannot see: against the same run with every level
+/// corrected as the finest (`--coarse-neighbourhood same`), the output's
+/// patches are clearly nearer the sample's.
+#[test]
+fn coarse_levels_with_the_full_neighbourhood_lay_out_a_grid() {
+    let dir = tempfile::tempdir().unwrap();
+    let sample = dir.path().join("tiles.png");
+    open(&common::assets().join("tiles_color_256.png"))
+        .crop_imm(0, 0, 128, 128)
+        .save(&sample)
+        .unwrap();
+    let a = texsyn::imaging::load_color(&sample).unwrap();
+    let fidelity = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let base = [
+            "synth",
+            s(&sample),
+            "-o",
+            s(&out),
+            "--size",
+            "256x256",
+            "--method",
+            "parallel",
+            "-q",
+        ];
+        ok(&[&base[..], extra].concat());
+        let b = texsyn::imaging::load_color(&out).unwrap();
+        texsyn::compare::patch_fidelity(&a, &b).unwrap()
+    };
+    for n in ["reduced", "half"] {
+        let coarse = fidelity(&format!("{n}.png"), &["--neighbourhood", n]);
+        let same = fidelity(
+            &format!("{n}-same.png"),
+            &["--neighbourhood", n, "--coarse-neighbourhood", "same"],
+        );
+        eprintln!("{n}: patch fidelity {same:.2} with one neighbourhood, {coarse:.2} with 7×7 coarse levels");
+        assert!(
+            coarse < 0.9 * same,
+            "{n}: the 7×7 coarse levels lay out the grid: {coarse} against {same}"
+        );
+    }
 }

@@ -251,6 +251,8 @@ pub fn run_synth(a: &SynthArgs) -> Result<()> {
         ("--copy-guard", a.copy_guard.is_some()),
         ("--k", a.k.is_some()),
         ("--coherence", a.coherence.is_some()),
+        ("--coarse-neighbourhood", a.coarse_neighbourhood.is_some()),
+        ("--coarse-passes", a.coarse_passes.is_some()),
         ("--candidate-cache", a.candidate_cache.is_some()),
     ];
     if let Some(flag) = first_given(&parallel_flags) {
@@ -350,7 +352,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
     ];
     if let Some(flag) = first_given(&block_flags) {
         anyhow::bail!(
-            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --fine-passes, --copy-guard, --k, --coherence, --seed, --coords and the run flags)"
+            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --fine-passes, --copy-guard, --k, --coherence, --coarse-neighbourhood, --coarse-passes, --seed, --coords and the run flags)"
         );
     }
     let args = ParallelArgs {
@@ -364,6 +366,8 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         copy_guard: a.copy_guard,
         k: a.k,
         coherence: a.coherence,
+        coarse_neighbourhood: a.coarse_neighbourhood.clone(),
+        coarse_passes: a.coarse_passes,
         histogram: a
             .histogram
             .unwrap_or(crate::parallel::driver::DEFAULT_HISTOGRAM),

@@ -222,6 +222,15 @@ pub struct SynthArgs {
     /// 0, the paper's plain choice, for 5 and 7).
     #[arg(long)]
     pub coherence: Option<f32>,
+    /// --method parallel: the neighbourhood of every level above the
+    /// finest (reduced, half, 5, 7 or same; default 7 for reduced and half,
+    /// same for 5 and 7).
+    #[arg(long, alias = "coarse-neighborhood")]
+    pub coarse_neighbourhood: Option<String>,
+    /// --method parallel: correction passes of the levels above the finest
+    /// where they have their own neighbourhood (1 to 64; default 16).
+    #[arg(long)]
+    pub coarse_passes: Option<usize>,
     /// --method parallel: strength of the histogram matching of the blend
     /// before every correction sub-pass, 0 to 1 (default 1; 0: the paper's
     /// plain method, which loses thin features).

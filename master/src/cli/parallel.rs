@@ -12,7 +12,7 @@ use super::{parse_size, RunArgs};
 use crate::imaging::{self, ColorImage};
 use crate::parallel::cache::CandidateCache;
 use crate::parallel::candidates::MAX_K;
-use crate::parallel::driver::Start;
+use crate::parallel::driver::{default_coherence, CoarseLevels, Start, COARSE_PASSES};
 use crate::parallel::synth::{self, MorphColour, Neighbourhood, ParallelSettings, Synthesis};
 use crate::parallel::weights;
 
@@ -105,6 +105,18 @@ pub struct ParallelArgs {
     /// paper's plain choice) for 5 and 7.
     #[arg(long)]
     pub coherence: Option<f32>,
+    /// The neighbourhood of every level above the finest: reduced, half, 5,
+    /// 7, or same (as the finest). Default 7 for reduced and half in
+    /// `synth` (the coarse levels lay out bricks, tiles and folds, and
+    /// cost a quarter of the finest level's pixels and less), same
+    /// elsewhere. It takes its own default coherence weight.
+    #[arg(long, alias = "coarse-neighborhood")]
+    pub coarse_neighbourhood: Option<String>,
+    /// Correction passes of the levels above the finest where they have
+    /// their own neighbourhood (1 to 64; default 16). --passes sets the
+    /// others.
+    #[arg(long)]
+    pub coarse_passes: Option<usize>,
     /// Correct every level, as the paper does. By default a level whose
     /// neighbourhood spans half the exemplar's smaller side or more is only
     /// jittered: there the exemplar itself is the one neighbourhood that
@@ -152,6 +164,44 @@ pub fn parse_neighbourhood(s: &str) -> Result<Neighbourhood> {
             "--neighbourhood '{s}' is not one of reduced, half, 5 or 7 for the synthesis on coordinates"
         ),
     })
+}
+
+/// The coarse levels from `--coarse-neighbourhood` and `--coarse-passes`
+/// over `default` (the neighbourhood's own coherence weight with them).
+fn parse_coarse(
+    name: Option<&str>,
+    passes: Option<usize>,
+    default: Option<CoarseLevels>,
+) -> Result<Option<CoarseLevels>> {
+    let coarse = match name {
+        None => default,
+        Some(n) if n.trim().eq_ignore_ascii_case("same") => None,
+        Some(n) => {
+            let neighbourhood = parse_neighbourhood(n).map_err(|_| {
+                anyhow::anyhow!(
+                    "--coarse-neighbourhood '{n}' is not one of reduced, half, 5, 7 or same"
+                )
+            })?;
+            Some(CoarseLevels {
+                neighbourhood,
+                passes: COARSE_PASSES,
+                coherence: default_coherence(neighbourhood),
+            })
+        }
+    };
+    match (coarse, passes) {
+        (_, None) => Ok(coarse),
+        (None, Some(_)) => anyhow::bail!(
+            "--coarse-passes needs levels with their own neighbourhood; give --coarse-neighbourhood 7 (or drop --coarse-passes)"
+        ),
+        (Some(c), Some(p)) => {
+            ensure!(
+                (1..=64).contains(&p),
+                "--coarse-passes {p} must be in 1..=64"
+            );
+            Ok(Some(CoarseLevels { passes: p, ..c }))
+        }
+    }
 }
 
 /// Opens `--candidate-cache`, if given.
@@ -212,6 +262,11 @@ impl ParallelArgs {
             (1..=MAX_K).contains(&k),
             "--k {k} must be in 1..={MAX_K} (the candidates each pixel compares per neighbour)"
         );
+        let coarse = parse_coarse(
+            self.coarse_neighbourhood.as_deref(),
+            self.coarse_passes,
+            defaults.coarse,
+        )?;
         let coherence = self.coherence.unwrap_or(defaults.coherence);
         ensure!(
             coherence.is_finite() && (0.0..=1000.0).contains(&coherence),
@@ -223,6 +278,7 @@ impl ParallelArgs {
             copy_guard,
             k,
             coherence,
+            coarse,
             jitter: match &self.jitter {
                 Some(j) => parse_jitter(j)?,
                 None => defaults.jitter.clone(),

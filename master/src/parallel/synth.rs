@@ -96,7 +96,6 @@ pub fn morph(
         seed: s.seed,
         start: s.start,
         histogram: s.histogram,
-        coherence: s.coherence,
         copy_guard: s.copy_guard,
         maps: vec![None; exemplars.len()],
         level: None,
@@ -135,7 +134,7 @@ pub fn memory_needed(
 ) -> u64 {
     let pixels = width as u64 * height as u64;
     let m = exemplars.len() as u64;
-    let points = s.neighbourhood.points().len() as u64;
+    let points = s.most_points() as u64;
     let per_exemplar_pixel = 4 * dims as u64 * (1 + points) + 8 * s.k as u64;
     let exemplar_pixels: u64 = exemplars
         .iter()
@@ -260,8 +259,6 @@ struct Plane<'a> {
     start: Start,
     /// Strength of the histogram matching of the blend.
     histogram: f32,
-    /// Coherence weight of the correction's choice.
-    coherence: f32,
     /// The copy guard's share ([`ParallelSettings::copy_guard`]).
     copy_guard: Option<f32>,
     /// Every exemplar's coordinates of the last finished level.
@@ -305,6 +302,7 @@ impl Lattice for Plane<'_> {
         ex: &LevelExemplars,
         points: &[Vec<[i32; 2]>],
         passes: usize,
+        coherence: f32,
         progress: &dyn Progress,
     ) {
         let (mut lv, level_weights) = self.level.take().expect("prepared");
@@ -334,7 +332,7 @@ impl Lattice for Plane<'_> {
                     &mut self.blend,
                     matching.as_ref().map(|m| (m, strength)),
                     &mut matched,
-                    self.coherence,
+                    coherence,
                     self.copy_guard,
                 );
                 progress.advance(1);

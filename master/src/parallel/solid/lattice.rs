@@ -38,9 +38,6 @@ pub(super) struct Volume<'a> {
     pub seed: u64,
     /// Strength of the histogram matching.
     pub histogram: f32,
-    /// Coherence weight of the correction's choice
-    /// ([`crate::parallel::driver::ParallelSettings::coherence`]).
-    pub coherence: f32,
     /// Weight of the index histogram matching ([`Usage`]; 0: off).
     pub index_histogram: f32,
     pub dims: usize,
@@ -100,6 +97,7 @@ impl Lattice for Volume<'_> {
         ex: &LevelExemplars,
         points: &[Vec<[i32; 2]>],
         passes: usize,
+        coherence: f32,
         progress: &dyn Progress,
     ) {
         let ls = self.level_size;
@@ -132,7 +130,7 @@ impl Lattice for Volume<'_> {
             weights: lw,
             matching,
             strength: self.histogram,
-            coherence: self.coherence,
+            coherence,
             index_histogram: self.index_histogram,
         };
         ctx.blend_all(&self.coords, &mut self.blend);

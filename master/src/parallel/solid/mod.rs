@@ -133,6 +133,10 @@ pub fn synthesize(
         size.iter().all(|&n| n >= 1),
         "the solid size must not be empty"
     );
+    ensure!(
+        s.coarse.is_none(),
+        "a solid corrects every level with one neighbourhood (its voxel offsets are laid out once); leave the coarse levels unset"
+    );
     if s.neighbourhood == Neighbourhood::Reduced {
         bail!(
             "the reduced neighbourhood fails in 3-D (Manke–Wünsche §5.4); use half (the default), 5 or 7"
@@ -252,7 +256,6 @@ pub fn synthesize(
         size,
         seed: s.seed,
         histogram: s.histogram,
-        coherence: s.coherence,
         index_histogram: settings.index_histogram,
         dims,
         full_weights,
