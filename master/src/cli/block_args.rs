@@ -199,7 +199,8 @@ pub struct SynthArgs {
     pub correct_every_level: bool,
     /// --method parallel: correction passes per level (1 to 64; default 5
     /// for --neighbourhood 7, 9 for 5, 8 for half, 4 for reduced; the
-    /// paper's is 2).
+    /// paper's is 2); levels with their own coarse neighbourhood take
+    /// --coarse-passes.
     #[arg(long)]
     pub passes: Option<usize>,
     /// --method parallel: correction passes of the finest level (1 to 64;

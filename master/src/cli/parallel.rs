@@ -77,8 +77,10 @@ pub struct ParallelArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Correction passes per level, each of four sub-passes (1 to 64;
-    /// default 9 for the 5 neighbourhood in `synth` (4 in `morph`) and 5 for 7; for reduced and half 4 in
-    /// `synth` and the paper's 2 in `morph`).
+    /// default 9 for the 5 neighbourhood in `synth` (4 in `morph`) and 5
+    /// for 7; 8 for half and 4 for reduced in `synth`, the paper's 2 in
+    /// `morph`). Levels with their own coarse
+    /// neighbourhood take --coarse-passes.
     #[arg(long)]
     pub passes: Option<usize>,
     /// Correction passes of the finest level (1 to 64; default 8 for the
@@ -237,7 +239,9 @@ impl ParallelArgs {
             (1..=64).contains(&passes),
             "--passes {passes} must be in 1..=64"
         );
-        // A --passes given alone sets every level, the finest included.
+        // A --passes given alone sets every level of the main neighbourhood,
+        // the finest included (coarse levels of their own take
+        // --coarse-passes).
         let fine_passes = match (self.fine_passes, self.passes) {
             (Some(p), _) => Some(p),
             (None, Some(_)) => None,
