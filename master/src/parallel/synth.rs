@@ -833,7 +833,9 @@ mod tests {
     /// plain choice (the planted case, weight 0) its corrections leave
     /// many neighbours incoherent and the output's patches far from the
     /// exemplar's. With the default weight more pairs continue each other
-    /// and the patches come nearer, without a copy.
+    /// and the patches come nearer, without a copy. Every level is reduced
+    /// here (no 7×7 coarse levels, which take the plain choice), so the
+    /// weight acts on each.
     #[test]
     fn the_coherence_weight_keeps_reduced_corrections_coherent() {
         let ex = texture("walnut_color_128.png");
@@ -841,6 +843,7 @@ mod tests {
         let run = |coherence| {
             let s = ParallelSettings {
                 coherence,
+                coarse: None,
                 ..ParallelSettings::defaults_for(Neighbourhood::Reduced, false)
             };
             let mut b = crate::search::LocalSearch::new(texsyn_engine::Engine::default());
