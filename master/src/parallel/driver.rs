@@ -334,21 +334,23 @@ pub fn default_coherence(n: Neighbourhood) -> f32 {
 /// with the full 7×7 neighbourhood, 16 passes and the plain choice. On the
 /// 22 samples up to 256² at 2× their side it took the patch fidelity
 /// within 1.3× of the block method's from 15 to 19 (`half`) and from 7 to
-/// 16 (`reduced`). A morph keeps the paper's levels (its cached sets make
-/// it a matter of seconds), and so do 5×5 and 7×7.
+/// 16 (`reduced`) at seed 1 (ARCHITECTURE §10 for other seeds), for about
+/// 1.7× the time. A morph keeps one neighbourhood (its cached sets are
+/// meant to make it a matter of seconds), and so do 5×5 and 7×7.
 pub fn default_coarse(n: Neighbourhood, morph: bool) -> Option<CoarseLevels> {
     match n {
         Neighbourhood::Reduced | Neighbourhood::Half if !morph => Some(CoarseLevels {
             neighbourhood: Neighbourhood::Full(7),
             passes: COARSE_PASSES,
-            coherence: 0.0,
+            coherence: default_coherence(Neighbourhood::Full(7)),
         }),
         _ => None,
     }
 }
 
 /// Correction passes of the coarse levels by default ([`default_coarse`]):
-/// 8, 12 and 16 gave 15, 17 and 19 of 22 for `half`.
+/// 8, 12 and 16 gave 16, 17 and 19 of 22 for `half` (7×7, plain choice,
+/// seed 1).
 pub const COARSE_PASSES: usize = 16;
 
 /// The share of the exemplar's smaller side that a neighbourhood must span
