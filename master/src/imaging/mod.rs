@@ -270,13 +270,13 @@ pub enum ImageIoError {
     Write { path: PathBuf, reason: String },
 }
 
-/// Rejects a 0-sized image and one over [`MAX_SIDE`] per side or [`MAX_PIXELS`]
-/// in total; `what` names the image in the message (e.g. "canvas").
 /// Rows of `row` bytes in reverse order: an image mirrored top to bottom.
 pub fn rows_reversed(bytes: &[u8], row: usize) -> Vec<u8> {
     bytes.chunks_exact(row).rev().flatten().copied().collect()
 }
 
+/// Rejects a 0-sized image and one over [`MAX_SIDE`] per side or [`MAX_PIXELS`]
+/// in total; `what` names the image in the message (e.g. "canvas").
 pub fn check_size(width: usize, height: usize, what: &str) -> anyhow::Result<()> {
     check_size_impl(width, height, what).map_err(Into::into)
 }
