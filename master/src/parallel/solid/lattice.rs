@@ -44,7 +44,9 @@ pub(super) struct Volume<'a> {
     /// Per material, its weight at every voxel of the full size (several
     /// materials only).
     pub full_weights: Option<Vec<Vec<f32>>>,
-    /// The neighbourhood's points per view as voxel offsets in its plane (eq. 5).
+    /// The level's neighbourhood points per view as voxel offsets in its
+    /// plane (eq. 5), laid out by [`voxel_offsets`] at every level (levels
+    /// may differ: [`crate::parallel::driver::CoarseLevels`]).
     pub points3: Vec<Vec<Vec<[i64; 3]>>>,
     /// Every view's coordinate at every voxel of the current level (view
     /// fastest), and the level's size.
@@ -102,6 +104,7 @@ impl Lattice for Volume<'_> {
     ) {
         let ls = self.level_size;
         let m = self.views.len();
+        self.points3 = voxel_offsets(self.views, points);
         let lw = self.weights.as_ref().expect("prepared");
         let n = ls.iter().product::<usize>();
         // The target of the matching: each exemplar's appearance with the
@@ -470,4 +473,27 @@ impl Level<'_> {
             }),
         )
     }
+}
+
+/// Each view's neighbourhood `points` as voxel offsets in its plane (eq. 5).
+fn voxel_offsets(views: &[View], points: &[Vec<[i32; 2]>]) -> Vec<Vec<Vec<[i64; 3]>>> {
+    views
+        .iter()
+        .map(|v| {
+            let [u, w] = v.axis.plane();
+            points
+                .iter()
+                .map(|pt| {
+                    pt.iter()
+                        .map(|o| {
+                            let mut d = [0i64; 3];
+                            d[u] = i64::from(o[0]);
+                            d[w] = i64::from(o[1]);
+                            d
+                        })
+                        .collect()
+                })
+                .collect()
+        })
+        .collect()
 }

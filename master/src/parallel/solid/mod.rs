@@ -133,10 +133,6 @@ pub fn synthesize(
         size.iter().all(|&n| n >= 1),
         "the solid size must not be empty"
     );
-    ensure!(
-        s.coarse.is_none(),
-        "a solid corrects every level with one neighbourhood (its voxel offsets are laid out once); leave the coarse levels unset"
-    );
     if s.neighbourhood == Neighbourhood::Reduced {
         bail!(
             "the reduced neighbourhood fails in 3-D (Manke–Wünsche §5.4); use half (the default), 5 or 7"
@@ -229,27 +225,6 @@ pub fn synthesize(
         }
     };
     let m = views.len();
-    let points = s.neighbourhood.points();
-    // Each view's neighbourhood points as voxel offsets in its plane (eq. 5).
-    let points3: Vec<Vec<Vec<[i64; 3]>>> = views
-        .iter()
-        .map(|v| {
-            let [u, w] = v.axis.plane();
-            points
-                .iter()
-                .map(|pt| {
-                    pt.iter()
-                        .map(|o| {
-                            let mut d = [0i64; 3];
-                            d[u] = i64::from(o[0]);
-                            d[w] = i64::from(o[1]);
-                            d
-                        })
-                        .collect()
-                })
-                .collect()
-        })
-        .collect();
     let mut volume = lattice::Volume {
         views,
         view_ex: &view_ex,
@@ -259,7 +234,7 @@ pub fn synthesize(
         index_histogram: settings.index_histogram,
         dims,
         full_weights,
-        points3,
+        points3: Vec::new(),
         coords: Vec::new(),
         level_size: [0; 3],
         weights: None,
