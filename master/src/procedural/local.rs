@@ -213,7 +213,9 @@ fn sweep_and_refine(
 /// [`sweep_and_refine`], then each whole-number parameter swept: every
 /// value is rendered with the other parameters kept, and the best new
 /// values (two at full effort) are swept and refined with a shorter simplex
-/// run each; repeated while one helps.
+/// run each; repeated while one helps. A scattered count (light effort) is
+/// compared on equal terms instead: every value from the start, each with
+/// the same short refinement, and the best refined in full.
 pub(super) fn refine_with_integers(
     shader: &'static Shader,
     start: &[f64],
@@ -243,10 +245,18 @@ pub(super) fn refine_with_integers(
                 Some(w) if scattered.is_none() && count == Some(i) => (v - here).abs() <= w * here,
                 _ => true,
             };
+            // A scattered count's values, its current one too, all start
+            // from the same point (the start, count set) and get the same
+            // refinement, so the current count's longer refinement does not
+            // decide the comparison.
             let values: Vec<f64> = (spec.min as i64..=spec.max as i64)
                 .map(|v| v as f64)
-                .filter(|&v| v != here && near(v))
+                .filter(|&v| (scattered.is_some() || v != here) && near(v))
                 .collect();
+            let from = match scattered {
+                Some(_) => shader.legal(start),
+                None => best.params.clone(),
+            };
             // A scattered count is compared by the objective plus the
             // structure term, as shaders are: the objective is flat across
             // counts, how the features break into pieces is not.
@@ -259,7 +269,7 @@ pub(super) fn refine_with_integers(
             let scored: Vec<(f64, f64, Vec<f64>, u64)> = values
                 .par_iter()
                 .map(|&v| {
-                    let mut p = best.params.clone();
+                    let mut p = from.clone();
                     p[i] = v;
                     Ok(match scattered {
                         Some(r) => {
@@ -285,9 +295,14 @@ pub(super) fn refine_with_integers(
                 tried = ?tried.iter().map(|t| (t.1, t.0)).collect::<Vec<_>>(),
                 "whole numbers tried, best first"
             );
+            // The best new values are refined as the current one was: in
+            // full for a scattered count, half as long for any other.
+            let iters_each = match scattered {
+                Some(_) => max_iters,
+                None => max_iters.div_ceil(2),
+            };
             for (_, _, p) in tried.iter().take(effort.alternatives) {
-                let (e, n) =
-                    sweep_and_refine(shader, p, max_iters.div_ceil(2), effort, target, evals)?;
+                let (e, n) = sweep_and_refine(shader, p, iters_each, effort, target, evals)?;
                 iters += n;
                 if rank(&e) < rank(&best) - 1e-9 {
                     best = e;
