@@ -295,13 +295,18 @@ pub(super) fn refine_with_integers(
                 tried = ?tried.iter().map(|t| (t.1, t.0)).collect::<Vec<_>>(),
                 "whole numbers tried, best first"
             );
-            // The best new values are refined as the current one was: in
-            // full for a scattered count, half as long for any other.
+            // The best new values are refined in full for a scattered count
+            // (as the current one was), half as long for any other; the
+            // current count, when it comes out best, already is.
             let iters_each = match scattered {
                 Some(_) => max_iters,
                 None => max_iters.div_ceil(2),
             };
-            for (_, _, p) in tried.iter().take(effort.alternatives) {
+            for (_, _, p) in tried
+                .iter()
+                .take(effort.alternatives)
+                .filter(|t| t.1 != here)
+            {
                 let (e, n) = sweep_and_refine(shader, p, iters_each, effort, target, evals)?;
                 iters += n;
                 if rank(&e) < rank(&best) - 1e-9 {
