@@ -77,10 +77,11 @@ pub fn parse(text: &str) -> Result<Vec<Label>> {
     Ok(out)
 }
 
-/// The count a pattern shows per unit (the unit square spans the analysed
-/// square): its rows, lines or scattered features, by its layout.
+/// The count a pattern shows across the unit square (which spans the
+/// analysed square): its rows, lines or scattered features, counted as the
+/// labels count them ([`Shader::count_across`]).
 pub fn count_of(shader: &Shader, params: &[f64]) -> Option<f64> {
-    params.get(shader.layout.count()?).copied()
+    shader.count_across(params)
 }
 
 /// A match judged against its label.
@@ -180,5 +181,26 @@ mod tests {
             &pattern("clouds", vec![3.0, 0.5]),
         );
         assert!(v.right, "{v:?}");
+    }
+
+    #[test]
+    fn scattered_cells_are_judged_by_the_cells_a_row_meets() {
+        // Five Worley points per unit, jittered over their whole cell: a
+        // row meets about six cells per unit, and that is what a photo's
+        // cells counted along a row are compared with.
+        let found = pattern("cells", vec![5.0, 1.0, 1.0, 0.1]);
+        let six = check(&parse("s.png cells 6 counted").unwrap()[0], &found);
+        assert!(six.right, "{six:?}");
+        let got = six.count.unwrap();
+        assert!(got > 5.75 && got < 6.5, "{got}");
+        let five = check(&parse("s.png cells 5 counted").unwrap()[0], &found);
+        assert!(five.family_right && !five.right, "{five:?}");
+        // On a square grid (the least jitter) the count stays near the
+        // points per unit.
+        let grid = check(
+            &parse("s.png cells 5 counted").unwrap()[0],
+            &pattern("cells", vec![5.0, 0.2, 1.0, 0.1]),
+        );
+        assert!(grid.right, "{grid:?}");
     }
 }

@@ -56,29 +56,94 @@ pub(super) const CELLS: &[ParamSpec] = &[
     ),
 ];
 
-/// Nearest and second-nearest feature-point distances (in cells) of a
-/// jittered grid of `n` cells per unit.
-pub(super) fn worley(u: f64, v: f64, n: f64, jitter: f64, salt: u32) -> (f64, f64) {
+/// The squared distances (in cells) from (u, v) to the points of the 3×3
+/// cells of a jittered grid of `n` cells per unit round it, each with its
+/// cell. Squared: their order is the distances' order, and two roots per
+/// pixel are cheaper than nine.
+fn jittered_points(
+    u: f64,
+    v: f64,
+    n: f64,
+    jitter: f64,
+    salt: u32,
+) -> impl Iterator<Item = (f64, (i64, i64))> {
     let (x, y) = (u * n, v * n);
     let (ci, cj) = (x.floor() as i64, y.floor() as i64);
-    let (mut f1, mut f2) = (f64::INFINITY, f64::INFINITY);
-    for dj in -1..=1 {
-        for di in -1..=1 {
+    (-1..=1).flat_map(move |dj| {
+        (-1..=1).map(move |di| {
             let (i, j) = (ci + di, cj + dj);
             let px = i as f64 + 0.5 + jitter * (hash01(i, j, salt) - 0.5);
             let py = j as f64 + 0.5 + jitter * (hash01(i, j, salt + 1) - 0.5);
-            // Squared distances: their order is the distances' order, and
-            // two roots per pixel are cheaper than nine.
-            let d = (px - x).powi(2) + (py - y).powi(2);
-            if d < f1 {
-                f2 = f1;
-                f1 = d;
-            } else if d < f2 {
-                f2 = d;
-            }
+            ((px - x).powi(2) + (py - y).powi(2), (i, j))
+        })
+    })
+}
+
+/// Nearest and second-nearest feature-point distances (in cells) of a
+/// jittered grid of `n` cells per unit.
+pub(super) fn worley(u: f64, v: f64, n: f64, jitter: f64, salt: u32) -> (f64, f64) {
+    let (mut f1, mut f2) = (f64::INFINITY, f64::INFINITY);
+    for (d, _) in jittered_points(u, v, n, jitter, salt) {
+        if d < f1 {
+            f2 = f1;
+            f1 = d;
+        } else if d < f2 {
+            f2 = d;
         }
     }
     (f1.sqrt(), f2.sqrt())
+}
+
+/// The cell of a jittered grid of `n` cells per unit whose point is nearest
+/// to (u, v) (the F1 point of [`worley`]).
+fn nearest_cell(u: f64, v: f64, n: f64, jitter: f64, salt: u32) -> (i64, i64) {
+    let mut best = (f64::INFINITY, (0, 0));
+    for (d, cell) in jittered_points(u, v, n, jitter, salt) {
+        if d < best.0 {
+            best = (d, cell);
+        }
+    }
+    best.1
+}
+
+/// Rows, their length in units, and samples per cell along each row of
+/// [`cells_across`].
+const ACROSS_ROWS: usize = 64;
+const ACROSS_SPAN: usize = 4;
+const ACROSS_SAMPLES_PER_CELL: usize = 32;
+const ACROSS_START: f64 = 0.37;
+
+/// The cells per unit that a horizontal line meets in [`cells`]' pattern
+/// `p` (legal parameters): the walls it crosses per unit of length, over
+/// `ACROSS_ROWS` rows of `ACROSS_SPAN` units, walked in steps of 1/32 of a
+/// cell. This is what a count of a photo's cells along a row measures (the
+/// stones across the image, a part cell at an edge counted as a part), free
+/// of the edges' part cells. A square grid gives its points per unit `n`;
+/// jittered points give more, since a line through n² points scattered at
+/// random meets about (4/π)·n cells per unit (a Poisson–Voronoi
+/// tessellation's walls, 2·n per unit area, met by a line at 2/π of that).
+pub(super) fn cells_across(p: &[f64]) -> f64 {
+    let (n, jitter) = (p[0], p[1]);
+    let steps = (n.ceil() as usize).max(1) * ACROSS_SAMPLES_PER_CELL * ACROSS_SPAN;
+    let walls: usize = (0..ACROSS_ROWS)
+        .map(|r| {
+            let v = (r as f64 + 0.5) / ACROSS_ROWS as f64;
+            let cells = (0..steps).map(|k| {
+                // Rows start off the grid's lines (0.37 of a unit), so a
+                // square grid's walls fall inside the span, n per unit.
+                let u = ACROSS_START + ACROSS_SPAN as f64 * (k as f64 + 0.5) / steps as f64;
+                nearest_cell(u, v, n, jitter, 11)
+            });
+            let mut last = None;
+            let mut crossed = 0;
+            for c in cells {
+                crossed += usize::from(last.is_some_and(|l| l != c));
+                last = Some(c);
+            }
+            crossed
+        })
+        .sum();
+    walls as f64 / (ACROSS_ROWS * ACROSS_SPAN) as f64
 }
 
 /// Worley cells (§3.1): a mix of F1 dots and F2 − F1 walls, each falling

@@ -135,6 +135,10 @@ pub struct Shader {
     pub shows: &'static [Arrangement],
     pattern: fn(&[f64], &Perlin, f64, f64) -> f64,
     seed: u32,
+    /// Scattered features whose count parameter is not what a line across
+    /// the pattern meets (jittered Worley cells): the mean number of
+    /// features a row of the unit square crosses, as photos are counted.
+    crossed: Option<fn(&[f64]) -> f64>,
 }
 
 impl std::fmt::Debug for Shader {
@@ -147,6 +151,21 @@ impl Shader {
     /// The pattern at (u, v) for legal parameters `p`.
     pub fn value(&self, p: &[f64], noise: &Perlin, u: f64, v: f64) -> f64 {
         (self.pattern)(p, noise, u, v)
+    }
+
+    /// The count the pattern `p` shows across the unit square (the analysed
+    /// square): its rows or lines per unit, its scattered features along a
+    /// row; `None` for noise. For rows, lines and spots on a jittered grid
+    /// it is the count parameter; for Worley cells, whose points stray over
+    /// their whole cell, a row meets more cells than there are points per
+    /// unit (up to 4/π times as many), and they are counted along rows.
+    pub fn count_across(&self, p: &[f64]) -> Option<f64> {
+        let i = self.layout.count()?;
+        let p = self.legal(p);
+        match self.crossed {
+            Some(f) => Some(f(&p)),
+            None => p.get(i).copied(),
+        }
     }
 
     /// `p` made legal, one value per parameter.
@@ -236,7 +255,8 @@ mod noise;
 
 use self::noise::{clouds, marble, turbulence, wood, CLOUDS, MARBLE, WOOD};
 use geometric::{
-    bricks, cells, planks, spots, stars, stripes, BRICKS, CELLS, PLANKS, SPOTS, STARS, STRIPES,
+    bricks, cells, cells_across, planks, spots, stars, stripes, BRICKS, CELLS, PLANKS, SPOTS,
+    STARS, STRIPES,
 };
 
 /// The library, in a fixed order (catalogues refer to shaders by name).
@@ -249,6 +269,7 @@ pub static LIBRARY: &[Shader] = &[
         shows: &[Isotropic],
         pattern: clouds,
         seed: 101,
+        crossed: None,
     },
     Shader {
         name: "turbulence",
@@ -258,6 +279,7 @@ pub static LIBRARY: &[Shader] = &[
         shows: &[Isotropic],
         pattern: turbulence,
         seed: 202,
+        crossed: None,
     },
     Shader {
         name: "marble",
@@ -267,6 +289,7 @@ pub static LIBRARY: &[Shader] = &[
         shows: &[Parallel],
         pattern: marble,
         seed: 303,
+        crossed: None,
     },
     Shader {
         name: "wood",
@@ -276,6 +299,7 @@ pub static LIBRARY: &[Shader] = &[
         shows: &[Parallel],
         pattern: wood,
         seed: 404,
+        crossed: None,
     },
     Shader {
         name: "cells",
@@ -285,6 +309,7 @@ pub static LIBRARY: &[Shader] = &[
         shows: &[Isotropic],
         pattern: cells,
         seed: 505,
+        crossed: Some(cells_across),
     },
     Shader {
         name: "bricks",
@@ -298,6 +323,7 @@ pub static LIBRARY: &[Shader] = &[
         shows: &[Lattice],
         pattern: bricks,
         seed: 606,
+        crossed: None,
     },
     Shader {
         name: "spots",
@@ -307,6 +333,7 @@ pub static LIBRARY: &[Shader] = &[
         shows: &[Isotropic],
         pattern: spots,
         seed: 707,
+        crossed: None,
     },
     Shader {
         name: "stripes",
@@ -316,6 +343,7 @@ pub static LIBRARY: &[Shader] = &[
         shows: &[Parallel],
         pattern: stripes,
         seed: 808,
+        crossed: None,
     },
     Shader {
         name: "stars",
@@ -329,6 +357,7 @@ pub static LIBRARY: &[Shader] = &[
         shows: &[Lattice],
         pattern: stars,
         seed: 909,
+        crossed: None,
     },
     Shader {
         name: "planks",
@@ -338,6 +367,7 @@ pub static LIBRARY: &[Shader] = &[
         shows: &[Parallel],
         pattern: planks,
         seed: 1010,
+        crossed: None,
     },
 ];
 
@@ -406,6 +436,35 @@ mod tests {
         // Dots (F1) are where it is low.
         let (small, large) = (share(0.0, 0.05, false), share(0.0, 0.3, false));
         assert!(small < 0.2 && large > 2.0 * small, "dots {small} {large}");
+    }
+
+    /// Cells are counted as a photo's are, by the walls a row crosses per
+    /// unit: a square grid of n per unit gives n, jittered points more (at
+    /// most the 4/π of points scattered at random), and the count follows
+    /// n. Rows, lines and spots give their count parameter; noise none.
+    #[test]
+    fn cells_are_counted_by_the_walls_a_row_crosses() {
+        for n in 2..=20 {
+            let n = f64::from(n);
+            assert_eq!(cells_across(&[n, 0.0, 1.0, 0.1]), n, "grid of {n}");
+        }
+        let cells = by_name("cells").unwrap();
+        let across = |n: f64, jitter: f64| cells.count_across(&[n, jitter, 1.0, 0.1]).unwrap();
+        for n in [4.0, 8.0, 16.0] {
+            let (some, full) = (across(n, 0.5), across(n, 1.0));
+            assert!(some > n && full > some, "{n}: jitter 0.5 {some}, 1 {full}");
+            assert!(full < 4.0 / std::f64::consts::PI * n, "{n}: {full}");
+        }
+        let (a, b) = (across(5.0, 0.9), across(10.0, 0.9));
+        assert!((b / a - 2.0).abs() < 0.15, "5: {a}, 10: {b}");
+        let bricks = by_name("bricks").unwrap();
+        assert_eq!(
+            bricks.count_across(&[7.0, 2.0, 0.1, 2.0, 0.1, 90.0]),
+            Some(7.0)
+        );
+        let spots = by_name("spots").unwrap();
+        assert_eq!(spots.count_across(&[6.0, 0.3, 0.2]), Some(6.0));
+        assert_eq!(by_name("clouds").unwrap().count_across(&[3.0, 0.5]), None);
     }
 
     #[test]
