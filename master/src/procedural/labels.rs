@@ -12,7 +12,7 @@
 use anyhow::{bail, ensure, Context, Result};
 
 use super::pattern::Pattern;
-use super::shaders::{by_name, Shader};
+use super::shaders::by_name;
 
 /// A match's count may differ from the label's by this share.
 pub const COUNT_TOLERANCE: f64 = 0.15;
@@ -77,13 +77,6 @@ pub fn parse(text: &str) -> Result<Vec<Label>> {
     Ok(out)
 }
 
-/// The count a pattern shows across the unit square (which spans the
-/// analysed square): its rows, lines or scattered features, counted as the
-/// labels count them ([`Shader::count_across`]).
-pub fn count_of(shader: &Shader, params: &[f64]) -> Option<f64> {
-    shader.count_across(params)
-}
-
 /// A match judged against its label.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Verdict {
@@ -100,7 +93,8 @@ pub struct Verdict {
 /// Judges `found` against `label`.
 pub fn check(label: &Label, found: &Pattern) -> Verdict {
     let family_right = label.families.iter().any(|f| f == found.shader.name);
-    let count = count_of(found.shader, &found.params);
+    // Counted as the labels count them, along rows (`count_across`).
+    let count = found.shader.count_across(&found.params);
     let count_error = match (label.count, count) {
         (Some(want), Some(got)) => Some((got - want).abs() / want),
         _ => None,

@@ -106,6 +106,9 @@ fn nearest_cell(u: f64, v: f64, n: f64, jitter: f64, salt: u32) -> (i64, i64) {
     best.1
 }
 
+/// The hash salt of [`cells`]' Worley points, which [`cells_across`] counts.
+const CELLS_SALT: u32 = 11;
+
 /// Rows, their length in units, and samples per cell along each row of
 /// [`cells_across`].
 const ACROSS_ROWS: usize = 64;
@@ -132,7 +135,7 @@ pub(super) fn cells_across(p: &[f64]) -> f64 {
                 // Rows start off the grid's lines (0.37 of a unit), so a
                 // square grid's walls fall inside the span, n per unit.
                 let u = ACROSS_START + ACROSS_SPAN as f64 * (k as f64 + 0.5) / steps as f64;
-                nearest_cell(u, v, n, jitter, 11)
+                nearest_cell(u, v, n, jitter, CELLS_SALT)
             });
             let mut last = None;
             let mut crossed = 0;
@@ -150,7 +153,7 @@ pub(super) fn cells_across(p: &[f64]) -> f64 {
 /// off over `width` of a cell, so that the walls' thickness is free of the
 /// count (caustic lines and the gaps between beans are thin at any spacing).
 pub(super) fn cells(p: &[f64], _: &Perlin, u: f64, v: f64) -> f64 {
-    let (f1, f2) = worley(u, v, p[0], p[1], 11);
+    let (f1, f2) = worley(u, v, p[0], p[1], CELLS_SALT);
     let w = 2.0 * p[3];
     (1.0 - p[2]) * (f1 / w).min(1.0) + p[2] * (1.0 - (f2 - f1) / w).max(0.0)
 }
