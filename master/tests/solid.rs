@@ -172,6 +172,20 @@ fn threads_do_not_change_a_byte() {
             "run {k}: 1 and 2 threads give different previews"
         );
     }
+    // The even slice contrast is on by default and recorded; off, the
+    // marble's slices keep the contrast the volume gives them.
+    let off = dir.path().join("no_slice_contrast");
+    let args: Vec<&str> = runs[0].iter().map(String::as_str).collect();
+    let plain = solid(&off, &[&args[..], &["--no-slice-contrast"]].concat());
+    let on = Volume::load(&dir.path().join("0_1").join("solid.json"))
+        .unwrap()
+        .0;
+    assert!(on != plain, "--no-slice-contrast changed nothing");
+    for (d, flag) in [(dir.path().join("0_1"), true), (off, false)] {
+        let header: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(d.join("solid.json")).unwrap()).unwrap();
+        assert_eq!(header["info"]["slice_contrast"], flag);
+    }
 }
 
 #[test]

@@ -68,6 +68,13 @@ pub struct SolidArgs {
     /// change).
     #[arg(long)]
     pub no_checker_cap: bool,
+    /// Leave each slice's contrast as the volume's histogram matching gives
+    /// it: by default every slice across every axis is scaled about its
+    /// mean until its standard deviation per channel is within 10 % of the
+    /// exemplars' (a solid's slices otherwise range from about 0.65 to 1.15
+    /// of it, where the volume's low frequencies fall).
+    #[arg(long)]
+    pub no_slice_contrast: bool,
     /// Keep every view as given: by default, where the three views of one
     /// material cannot agree (their gradient correlations, streaks along the
     /// exemplar's anti-diagonal on all three, have no solid), one view's
@@ -246,6 +253,7 @@ impl TryFrom<&SolidArgs> for SolidJob {
                 index_histogram: a.index_histogram,
                 band_matching: a.band_matching,
                 checker_cap: !a.no_checker_cap,
+                slice_contrast: !a.no_slice_contrast,
                 mirror: !a.no_mirror,
             },
             weights,

@@ -319,6 +319,7 @@ impl SolidJob {
             "index_histogram": s.index_histogram,
             "band_matching": s.band_matching,
             "checker_cap": s.checker_cap,
+            "slice_contrast": s.slice_contrast,
             "mirrored_views": mirrored.iter().map(|a| a.name().to_string()).collect::<Vec<_>>(),
             "seed": s.base.seed,
             "levels": out.levels,

@@ -32,6 +32,7 @@ use crate::progress::Progress;
 use crate::search::SearchBackend;
 
 mod bands;
+mod contrast;
 mod job;
 mod lattice;
 pub mod mirror;
@@ -91,6 +92,10 @@ pub struct Solid {
     /// capped at the exemplars' ([`bands::cap_checker`]), which [`replay`]
     /// applies too.
     pub checker_cap: bool,
+    /// Whether every slice's per-channel contrast is kept within
+    /// [`contrast::BAND`] of the exemplars' ([`contrast::even_slices`]),
+    /// which [`replay`] applies too.
+    pub slice_contrast: bool,
 }
 
 /// Bytes a solid of `size` with `views` views, `materials` materials and
@@ -263,6 +268,7 @@ pub fn synthesize(
         colour_matching: if materials == 1 { s.histogram } else { 0.0 },
         band_matching: settings.band_matching,
         checker_cap: settings.checker_cap,
+        slice_contrast: settings.slice_contrast,
     };
     let exemplars: Vec<ColorImage> = views.iter().map(|v| v.exemplar.clone()).collect();
     solid.colour = replay(&solid, &exemplars, 3)?.data;
@@ -283,6 +289,9 @@ pub struct SolidSettings {
     /// Cap the band-matched colour's pixel checker at the exemplars'
     /// ([`bands::cap_checker`]; only with band matching).
     pub checker_cap: bool,
+    /// Keep every slice's contrast within [`contrast::BAND`] of the
+    /// exemplars' ([`contrast::even_slices`]; only with histogram matching).
+    pub slice_contrast: bool,
     /// Mirror one view where the three views of one material cannot agree
     /// as they are ([`mirror`]; the job does it, reading the files).
     pub mirror: bool,
@@ -318,6 +327,7 @@ impl Default for SolidSettings {
             index_histogram: INDEX_HISTOGRAM,
             band_matching: BAND_MATCHING,
             checker_cap: true,
+            slice_contrast: true,
             mirror: true,
         }
     }
@@ -371,6 +381,9 @@ pub fn replay(s: &Solid, maps: &[ColorImage], channels: usize) -> Result<Volume>
                 s.colour_matching,
             );
         }
+    }
+    if s.colour_matching > 0.0 && s.slice_contrast {
+        contrast::even_slices(&mut data, s.size, channels, &weighted);
     }
     if s.colour_matching > 0.0 && s.band_matching > 0 && s.checker_cap {
         bands::cap_checker(&mut data, s.size, channels, &weighted);
