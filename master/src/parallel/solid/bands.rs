@@ -456,6 +456,19 @@ fn recombine(
         });
 }
 
+/// Whether `data` is a non-empty volume of `size` with `channels` bytes per
+/// voxel and there are `maps` to match it to: the steps on the colour
+/// leave anything else as it is.
+pub(super) fn holds_a_volume(
+    data: &[u8],
+    size: [usize; 3],
+    channels: usize,
+    maps: &[(&ColorImage, f64)],
+) -> bool {
+    let voxels: usize = size.iter().product();
+    voxels > 0 && !maps.is_empty() && data.len() == voxels * channels
+}
+
 /// Caps the pixel checker of every slice of `data` (a volume of `size`,
 /// `channels` bytes per voxel) at the `maps`' (each with its weight): each
 /// colour component (as [`match_bands`] splits them) has each plane across
@@ -475,8 +488,7 @@ pub fn cap_checker(
     channels: usize,
     maps: &[(&ColorImage, f64)],
 ) {
-    let voxels: usize = size.iter().product();
-    if voxels == 0 || maps.is_empty() || data.len() != voxels * channels {
+    if !holds_a_volume(data, size, channels, maps) {
         return;
     }
     let (axes, mean) = colour_axes(maps, channels);

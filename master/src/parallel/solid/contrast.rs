@@ -142,8 +142,7 @@ pub fn even_slices(
     channels: usize,
     maps: &[(&ColorImage, f64)],
 ) {
-    let voxels: usize = size.iter().product();
-    if voxels == 0 || maps.is_empty() || data.len() != voxels * channels {
+    if !super::bands::holds_a_volume(data, size, channels, maps) {
         return;
     }
     for ch in 0..channels {
