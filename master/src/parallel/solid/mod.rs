@@ -19,7 +19,9 @@
 //! components after every sub-pass, the output colour per channel at the
 //! end ([`histogram`]). The colour's Laplacian bands are then matched to
 //! the exemplars' as Heeger and Bergen do ([`bands`]), which restores part
-//! of the crispness the blend of three views takes away.
+//! of the crispness the blend of three views takes away, and every slice
+//! across every axis is given the exemplars' contrast ([`contrast`]), which
+//! the volume-wide matching leaves to where the low frequencies fall.
 
 use anyhow::{bail, ensure, Result};
 
