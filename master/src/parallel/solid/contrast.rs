@@ -14,6 +14,7 @@
 
 use rayon::prelude::*;
 
+use crate::compare::channel_deviations;
 use crate::imaging::ColorImage;
 
 /// A slice's per-channel standard deviation is kept within this share of
@@ -29,28 +30,15 @@ pub const ROUNDS: usize = 3;
 const MAX_SCALE: f64 = 2.0;
 
 /// The maps' standard deviation of channel `ch`, each map with its weight
-/// (pooled: the maps' variances and the spread of their means).
+/// (the root of their weighted mean variance; one map: its own).
 fn target_deviation(maps: &[(&ColorImage, f64)], ch: usize) -> f64 {
-    let moments: Vec<(f64, f64, f64)> = maps
-        .iter()
-        .map(|&(m, w)| {
-            let n = m.rgb.len() / 3;
-            let (s, s2) = m.rgb.chunks_exact(3).fold((0.0, 0.0), |(s, s2), p| {
-                let v = f64::from(p[ch]);
-                (s + v, s2 + v * v)
-            });
-            let mean = s / n.max(1) as f64;
-            (w, mean, (s2 / n.max(1) as f64 - mean * mean).max(0.0))
-        })
-        .collect();
-    let weight: f64 = moments.iter().map(|m| m.0).sum();
+    let weight: f64 = maps.iter().map(|m| m.1).sum();
     if weight <= 0.0 {
         return 0.0;
     }
-    let mean = moments.iter().map(|m| m.0 * m.1).sum::<f64>() / weight;
-    let var = moments
+    let var = maps
         .iter()
-        .map(|&(w, m, v)| w * (v + (m - mean).powi(2)))
+        .map(|&(m, w)| w * channel_deviations(m)[ch].powi(2))
         .sum::<f64>()
         / weight;
     var.sqrt()
