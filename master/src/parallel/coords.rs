@@ -97,6 +97,18 @@ impl CoordMap {
 /// `H` hashes the position, level and seed to `[−1, 1)²`, so the jitter does
 /// not depend on the order pixels are visited. At `r = 0` there is no jitter;
 /// at `r = 1` each axis is −1, 0 or +1 with probability 1/3 each.
+/// `v` modulo `n` (`n > 0`), for a neighbour's place on a wrapping lattice
+/// or exemplar: most lie inside, so the division is only paid at the
+/// border (it was a tenth of a solid's time).
+#[inline]
+pub fn wrap(v: i64, n: usize) -> usize {
+    if (0..n as i64).contains(&v) {
+        v as usize
+    } else {
+        v.rem_euclid(n as i64) as usize
+    }
+}
+
 pub fn jitter_offset(p: [i64; 3], r: f64, level: u32, seed: u64) -> [i64; 2] {
     let lerp = |a: f64, b: f64, t: f64| a + t * (b - a);
     let h = position_hash(p, level, seed);
@@ -139,6 +151,16 @@ pub fn position_hash(p: [i64; 3], level: u32, seed: u64) -> [f64; 2] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The fast path agrees with the division everywhere, inside the
+        /// lattice, across its border and many sides away.
+        #[test]
+        fn wrap_is_the_euclidean_remainder(v in -1_000_000i64..1_000_000, n in 1usize..5000) {
+            prop_assert_eq!(wrap(v, n), v.rem_euclid(n as i64) as usize);
+        }
+    }
 
     #[test]
     fn at_full_strength_each_axis_splits_into_thirds() {

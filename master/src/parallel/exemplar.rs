@@ -5,6 +5,7 @@
 use rayon::prelude::*;
 
 use super::appearance::Pca;
+use super::coords::wrap;
 use crate::imaging::ColorImage;
 
 /// Neighbourhood tables above this many floats are not kept; their entries
@@ -103,7 +104,6 @@ impl ExemplarLevel {
     /// back by `h·(dx, dy)`. Coherent neighbours shift back to the same
     /// exemplar pixel: each such base is taken once.
     pub(super) fn bases(&self, neighbour: impl Fn(i64, i64) -> [u32; 2]) -> Bases {
-        let (ew, eh) = (self.width as i64, self.height as i64);
         let mut bases = [[u32::MAX; 2]; 9];
         let mut votes = [0u8; 9];
         let mut nb = 0;
@@ -111,8 +111,8 @@ impl ExemplarLevel {
             for dx in -1..=1i64 {
                 let n = neighbour(dx, dy);
                 let base = [
-                    (i64::from(n[0]) - self.h * dx).rem_euclid(ew) as u32,
-                    (i64::from(n[1]) - self.h * dy).rem_euclid(eh) as u32,
+                    wrap(i64::from(n[0]) - self.h * dx, self.width) as u32,
+                    wrap(i64::from(n[1]) - self.h * dy, self.height) as u32,
                 ];
                 match bases[..nb].iter().position(|b| *b == base) {
                     Some(i) => votes[i] += 1,

@@ -8,7 +8,7 @@ use anyhow::{ensure, Result};
 use rayon::prelude::*;
 
 use super::appearance::Pca;
-use super::coords::CoordMap;
+use super::coords::{wrap, CoordMap};
 use super::driver::{
     blend, check_exemplar, exemplar_seed, run_levels, Lattice, LevelExemplars, Start,
 };
@@ -442,15 +442,13 @@ fn gather(
     (x, y): (i64, i64),
     want: &mut Vec<f32>,
 ) {
-    let (w, hh) = (width as i64, height as i64);
     want.clear();
     for pt in points {
         let start = want.len();
         want.extend(std::iter::repeat_n(0.0f32, dims));
         let share = 1.0 / pt.len() as f32;
         for o in pt {
-            let j = (y + i64::from(o[1])).rem_euclid(hh) as usize * width
-                + (x + i64::from(o[0])).rem_euclid(w) as usize;
+            let j = wrap(y + i64::from(o[1]), height) * width + wrap(x + i64::from(o[0]), width);
             for (a, v) in want[start..]
                 .iter_mut()
                 .zip(&blend[j * dims..(j + 1) * dims])
@@ -550,7 +548,6 @@ fn correct(
     };
     let (width, height, m) = (lv.width, lv.height, lv.m);
     let dims = ex[0].dims;
-    let (w, hh) = (width as i64, height as i64);
     let crowded = crowded_offsets(lv, ex, guard);
     let mut out = lv.coords.clone();
     out.par_chunks_mut(width * m)
@@ -567,8 +564,7 @@ fn correct(
                     for (e, (exl, (k, table))) in ex.iter().zip(cands).enumerate() {
                         let i = y as usize * width + x as usize;
                         let bases = exl.bases(|dx, dy| {
-                            let ni = (y + dy).rem_euclid(hh) as usize * width
-                                + (x + dx).rem_euclid(w) as usize;
+                            let ni = wrap(y + dy, height) * width + wrap(x + dx, width);
                             lv.coords[ni * m + e]
                         });
                         row[x as usize * m + e] = exl.best_candidate(

@@ -70,8 +70,10 @@ impl Grid {
         v.par_chunks_mut(plane.max(1))
             .enumerate()
             .for_each(|(z, out)| {
-                for (i, o) in out.iter_mut().enumerate() {
-                    *o = f([i % size[0], i / size[0], z]);
+                for (y, row) in out.chunks_mut(size[0].max(1)).enumerate() {
+                    for (x, o) in row.iter_mut().enumerate() {
+                        *o = f([x, y, z]);
+                    }
                 }
             });
         Self { size, v }
@@ -83,12 +85,15 @@ impl Grid {
         let n = self.size[axis];
         let mut size = self.size;
         size[axis] = n.div_ceil(2);
+        let taps: Vec<[usize; 5]> = (0..size[axis])
+            .map(|i| std::array::from_fn(|k| (2 * i + n + k - 2) % n))
+            .collect();
         Self::from_fn(size, |p| {
             let mut q = p;
             TAPS.iter()
-                .enumerate()
-                .map(|(k, &t)| {
-                    q[axis] = (2 * p[axis] + n + k - 2) % n;
+                .zip(&taps[p[axis]])
+                .map(|(&t, &j)| {
+                    q[axis] = j;
                     t * self.v[self.index(q)]
                 })
                 .sum()
@@ -100,11 +105,13 @@ impl Grid {
     fn expand_axis(&self, axis: usize, n: usize) -> Self {
         let mut size = self.size;
         size[axis] = n;
+        let taps: Vec<[usize; 5]> = (0..n)
+            .map(|i| std::array::from_fn(|k| (i + n + 2 - k) % n))
+            .collect();
         Self::from_fn(size, |p| {
             let mut q = p;
             let mut s = 0.0f32;
-            for (k, &t) in TAPS.iter().enumerate() {
-                let j = (p[axis] + n + 2 - k) % n;
+            for (&t, &j) in TAPS.iter().zip(&taps[p[axis]]) {
                 if j.is_multiple_of(2) {
                     q[axis] = j / 2;
                     s += 2.0 * t * self.v[self.index(q)];
@@ -121,11 +128,11 @@ impl Grid {
         (0..3)
             .filter(|&a| self.size[a] > 1)
             .fold(self.clone(), |g, a| {
-                let n = g.size[a];
+                let (back, ahead) = (steps(g.size[a], true), steps(g.size[a], false));
                 Self::from_fn(g.size, |p| {
                     let (mut l, mut r) = (p, p);
-                    l[a] = (p[a] + n - 1) % n;
-                    r[a] = (p[a] + 1) % n;
+                    l[a] = back[p[a]];
+                    r[a] = ahead[p[a]];
                     0.25 * g.v[g.index(l)] + 0.5 * g.v[g.index(p)] + 0.25 * g.v[g.index(r)]
                 })
             })
@@ -150,12 +157,11 @@ impl Grid {
     /// `v(p) − v(p + a) − v(p + b) + v(p + a + b)` (wrapping; `sign` −1
     /// steps back along both axes instead, the adjoint).
     fn mixed(&self, a: usize, b: usize, back: bool) -> Self {
-        let (na, nb) = (self.size[a], self.size[b]);
-        let (sa, sb) = if back { (na - 1, nb - 1) } else { (1, 1) };
+        let (ta, tb) = (steps(self.size[a], back), steps(self.size[b], back));
         Self::from_fn(self.size, |p| {
             let (mut pa, mut pb, mut pab) = (p, p, p);
-            pa[a] = (p[a] + sa) % na;
-            pb[b] = (p[b] + sb) % nb;
+            pa[a] = ta[p[a]];
+            pb[b] = tb[p[b]];
             pab[a] = pa[a];
             pab[b] = pb[b];
             self.v[self.index(p)] - self.v[self.index(pa)] - self.v[self.index(pb)]
@@ -172,8 +178,14 @@ impl Grid {
     /// difference. Its frequency response is `1 − β sin²(ωa/2) sin²(ωb/2)`:
     /// the pixel checker (both at Nyquist) is scaled by `1 − β`, what varies
     /// along one axis only (an edge along the other) is untouched.
+    #[cfg(test)]
     fn damp_checker(&self, a: usize, b: usize, beta: f64) -> Self {
-        let mtm = self.mixed_difference(a, b).mixed(a, b, true);
+        self.damped(&self.mixed_difference(a, b).mixed(a, b, true), beta)
+    }
+
+    /// `v − β/16 · mtm`, with `mtm` this grid's `MᵀM v` worked out once for
+    /// every β tried.
+    fn damped(&self, mtm: &Grid, beta: f64) -> Self {
         let k = (beta / 16.0) as f32;
         let v = self
             .v
@@ -239,25 +251,28 @@ impl Grid {
     /// that reaches it. At or under the target it is returned as it is.
     fn plane_checker_at_most(self, target: f64) -> Self {
         let mut g = self;
+        let mut now = g.checker(0, 1);
         for _ in 0..CHECKER_PASSES {
-            if g.checker(0, 1) <= target {
+            if now <= target {
                 break;
             }
-            let full = g.damp_checker(0, 1, 1.0);
-            if full.checker(0, 1) > target {
-                g = full;
+            let mtm = g.mixed_difference(0, 1).mixed(0, 1, true);
+            let full = g.damped(&mtm, 1.0);
+            let after = full.checker(0, 1);
+            if after > target {
+                (g, now) = (full, after);
                 continue;
             }
             let (mut lo, mut hi) = (0.0f64, 1.0f64);
             for _ in 0..CHECKER_STEPS {
                 let mid = 0.5 * (lo + hi);
-                if g.damp_checker(0, 1, mid).checker(0, 1) > target {
+                if g.damped(&mtm, mid).checker(0, 1) > target {
                     lo = mid;
                 } else {
                     hi = mid;
                 }
             }
-            g = g.damp_checker(0, 1, hi);
+            g = g.damped(&mtm, hi);
             break;
         }
         g
@@ -274,6 +289,14 @@ impl Grid {
             .filter(|&a| to[a] > 1)
             .fold(self.clone(), |g, a| g.expand_axis(a, to[a]))
     }
+}
+
+/// The neighbour one step ahead (or back) of each of `n` places on a
+/// wrapping axis: looked up instead of a division per value.
+fn steps(n: usize, back: bool) -> Vec<usize> {
+    (0..n)
+        .map(|i| if back { (i + n - 1) % n } else { (i + 1) % n })
+        .collect()
 }
 
 /// Levels a grid of `size` can be split into: while every side longer

@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::weights::{downsample3, ViewWeights};
 use super::View;
-use crate::parallel::coords::{jitter_offset, random_pixel};
+use crate::parallel::coords::{jitter_offset, random_pixel, wrap};
 use crate::parallel::driver::{exemplar_seed, Lattice, LevelExemplars};
 use crate::parallel::exemplar::ExemplarLevel;
 use crate::parallel::histogram::Matching;
@@ -315,9 +315,7 @@ impl Level<'_> {
     #[inline]
     fn index(&self, p: [i64; 3]) -> usize {
         let s = self.size;
-        let x = p[0].rem_euclid(s[0] as i64) as usize;
-        let y = p[1].rem_euclid(s[1] as i64) as usize;
-        let z = p[2].rem_euclid(s[2] as i64) as usize;
+        let [x, y, z] = [0, 1, 2].map(|a| wrap(p[a], s[a]));
         (z * s[1] + y) * s[0] + x
     }
 
