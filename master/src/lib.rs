@@ -25,6 +25,7 @@ pub mod cluster;
 pub mod compare;
 pub mod filters;
 pub mod imaging;
+pub mod lattice;
 pub mod launch;
 pub mod parallel;
 pub mod procedural;

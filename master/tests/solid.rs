@@ -151,6 +151,14 @@ fn threads_do_not_change_a_byte() {
             "--size".into(),
             "24".into(),
         ],
+        vec![
+            "--view".to_string(),
+            format!("xyz={}", s(&common::assets().join("burlap_color_96.png"))),
+            "--lattice".into(),
+            "13.7x16".into(),
+            "--size".into(),
+            "20x24x16".into(),
+        ],
     ];
     for (k, args) in runs.iter().enumerate() {
         let mut out = Vec::new();
@@ -186,6 +194,16 @@ fn threads_do_not_change_a_byte() {
             serde_json::from_slice(&std::fs::read(d.join("solid.json")).unwrap()).unwrap();
         assert_eq!(header["info"]["slice_contrast"], flag);
     }
+    // The lattice is recorded, and off it is null.
+    let lattice = |d: &str| -> serde_json::Value {
+        serde_json::from_slice::<serde_json::Value>(
+            &std::fs::read(dir.path().join(d).join("solid.json")).unwrap(),
+        )
+        .unwrap()["info"]["lattice"]
+            .clone()
+    };
+    assert_eq!(lattice("2_1"), serde_json::json!([13.7, 16.0]));
+    assert!(lattice("0_1").is_null());
 }
 
 #[test]

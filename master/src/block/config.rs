@@ -4,9 +4,9 @@
 use anyhow::{ensure, Result};
 use texsyn_engine::{Geometry, Metric, Weights};
 
-use super::lattice::Lattice;
 use super::repeats::RepeatControl;
 use crate::imaging::{self, ColorImage};
+use crate::lattice::Lattice;
 
 /// How full synthesis grows a new texture.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]

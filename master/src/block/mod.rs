@@ -33,11 +33,11 @@ mod plan;
 pub mod queue;
 mod repeats;
 
+pub use crate::lattice::Lattice;
 pub use config::{
     growth_neighbourhood, Config, FillSource, Mode, Position, Stitch, SynthMethod,
     MAX_CANVAS_PIXELS, PATH_GROWTH_NEIGHBOURHOOD,
 };
-pub use lattice::Lattice;
 pub use plan::resolve_levels;
 pub use repeats::RepeatControl;
 

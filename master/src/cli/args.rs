@@ -1,8 +1,9 @@
 //! The one parser of sizes and grids (`WxH`, `N` or `XxYxZ`) used by every
 //! command's flags.
 
-use anyhow::{bail, ensure, Result};
+use anyhow::{bail, ensure, Context, Result};
 
+use crate::lattice::Lattice;
 use crate::{block, imaging};
 
 /// Parses `s`, the value of `flag`, as positive numbers joined by `x` (`WxH`,
@@ -55,6 +56,22 @@ pub fn parse_size(s: &str) -> Result<(usize, usize)> {
 pub fn parse_pair(s: &str, flag: &str) -> Result<(usize, usize)> {
     let d = parse_dims(s, flag, &[2], "4x4")?;
     Ok((d[0], d[1]))
+}
+
+/// Parses `--lattice WxH`: two periods in pixels, fractions allowed.
+pub fn parse_lattice(s: &str) -> Result<Lattice> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .with_context(|| format!("--lattice '{s}' is not WxH, e.g. --lattice 32x32"))?;
+    // The periods' range is checked with the sample (`Lattice::validate`).
+    let period = |name: &str, v: &str| -> Result<f64> {
+        v.trim().parse().with_context(|| {
+            format!("--lattice '{s}': the {name} '{v}' is not a number, e.g. --lattice 32x32")
+        })
+    };
+    Ok(Lattice {
+        period: [period("width", w)?, period("height", h)?],
+    })
 }
 
 #[cfg(test)]

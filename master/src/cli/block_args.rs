@@ -101,8 +101,8 @@ pub struct Common {
     /// tiles stay whole and joints line up. Deterministic, and the
     /// same across threads and workers; cannot be combined with repetition
     /// control.
-    #[arg(long, value_name = "WxH", value_parser = parse_lattice)]
-    pub lattice: Option<block::Lattice>,
+    #[arg(long, value_name = "WxH", value_parser = super::args::parse_lattice)]
+    pub lattice: Option<crate::lattice::Lattice>,
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
     /// textures whose structure and colour disagree. Runs on this machine.
     #[arg(long)]
@@ -253,22 +253,6 @@ pub enum MethodArg {
     Grow,
     Scanline,
     Parallel,
-}
-
-/// Parses `--lattice WxH`: two periods in pixels, fractions allowed.
-fn parse_lattice(s: &str) -> Result<block::Lattice> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .with_context(|| format!("--lattice '{s}' is not WxH, e.g. --lattice 32x32"))?;
-    // The periods' range is checked with the sample (`Lattice::validate`).
-    let period = |name: &str, v: &str| -> Result<f64> {
-        v.trim().parse().with_context(|| {
-            format!("--lattice '{s}': the {name} '{v}' is not a number, e.g. --lattice 32x32")
-        })
-    };
-    Ok(block::Lattice {
-        period: [period("width", w)?, period("height", h)?],
-    })
 }
 
 fn parse_weights(s: &str) -> Result<Weights> {

@@ -75,6 +75,13 @@ pub struct SolidArgs {
     /// of it, where the volume's low frequencies fall).
     #[arg(long)]
     pub no_slice_contrast: bool,
+    /// Lattice phase, for exemplars on a regular grid (a weave, tiles, a
+    /// mosaic): the grid's period WxH in exemplar pixels (fractions allowed,
+    /// e.g. 13.7x16; 0 leaves an axis free). Every view's coordinates are
+    /// kept within a pixel of the grid's phase at the voxel, so the slices
+    /// show the grid instead of blotches; it applies to every view
+    #[arg(long, value_name = "WxH", value_parser = super::args::parse_lattice)]
+    pub lattice: Option<crate::lattice::Lattice>,
     /// Keep every view as given: by default, where the three views of one
     /// material cannot agree (their gradient correlations, streaks along the
     /// exemplar's anti-diagonal on all three, have no solid), one view's
@@ -255,6 +262,7 @@ impl TryFrom<&SolidArgs> for SolidJob {
                 checker_cap: !a.no_checker_cap,
                 slice_contrast: !a.no_slice_contrast,
                 mirror: !a.no_mirror,
+                lattice: a.lattice,
             },
             weights,
             slices: parse_slices(&a.slices)?,

@@ -320,6 +320,7 @@ impl SolidJob {
             "band_matching": s.band_matching,
             "checker_cap": s.checker_cap,
             "slice_contrast": s.slice_contrast,
+            "lattice": s.lattice.map(|l| l.period),
             "mirrored_views": mirrored.iter().map(|a| a.name().to_string()).collect::<Vec<_>>(),
             "seed": s.base.seed,
             "levels": out.levels,

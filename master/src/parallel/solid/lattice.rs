@@ -10,6 +10,7 @@ use rayon::prelude::*;
 
 use super::weights::{downsample3, ViewWeights};
 use super::View;
+use crate::lattice::Lattice as Grid;
 use crate::parallel::coords::{jitter_offset, random_pixel, wrap};
 use crate::parallel::driver::{exemplar_seed, Lattice, LevelExemplars};
 use crate::parallel::exemplar::ExemplarLevel;
@@ -58,7 +59,16 @@ pub(super) struct Volume<'a> {
     /// The blend histogram-matched, which the neighbourhoods are gathered
     /// from (empty when the strength is 0).
     pub matched: Vec<f32>,
+    /// The exemplars' grid, which every view's offsets keep ([`PHASE_TOLERANCE`]).
+    pub phase: Option<Grid>,
 }
+
+/// Lattice phase (ARCHITECTURE §11): how far, in exemplar pixels, a
+/// candidate's offset (coordinate less `h` times the voxel's place in the
+/// view's plane) may lie from the grid along each axis. Half a pixel let
+/// too few candidates through and the weave blurred; one and two pixels
+/// kept it alike.
+pub const PHASE_TOLERANCE: f64 = 1.0;
 
 impl Lattice for Volume<'_> {
     const SUB_PASSES: usize = SUB_PASSES.len();
@@ -76,7 +86,7 @@ impl Lattice for Volume<'_> {
         } else {
             upsample(&self.coords, self.level_size, ls, self.views, h)
         };
-        let (views, seed, m) = (self.views, self.seed, self.views.len());
+        let (views, seed, m, phase) = (self.views, self.seed, self.views.len(), self.phase);
         coords.par_chunks_mut(m).enumerate().for_each(|(i, cs)| {
             let p = [
                 (i % ls[0]) as i64,
@@ -88,6 +98,14 @@ impl Lattice for Volume<'_> {
                 let (ew, eh) = (v.exemplar.width as i64, v.exemplar.height as i64);
                 c[0] = (i64::from(c[0]) + jx * h as i64).rem_euclid(ew) as u32;
                 c[1] = (i64::from(c[1]) + jy * h as i64).rem_euclid(eh) as u32;
+                if let Some(l) = &phase {
+                    // Back onto the lattice the jitter moved it off.
+                    let [u, w] = v.axis.plane();
+                    for (a, (ax, n)) in [(0, (u, ew)), (1, (w, eh))] {
+                        let o = l.nearest(a, i64::from(c[a]) - h as i64 * p[ax]);
+                        c[a] = (h as i64 * p[ax] + o).rem_euclid(n) as u32;
+                    }
+                }
             }
         });
         self.coords = coords;
@@ -135,6 +153,7 @@ impl Lattice for Volume<'_> {
             strength: self.histogram,
             coherence,
             index_histogram: self.index_histogram,
+            phase: self.phase,
         };
         ctx.blend_all(&self.coords, &mut self.blend);
         for _ in 0..passes {
@@ -232,6 +251,7 @@ struct Level<'a> {
     strength: f32,
     coherence: f32,
     index_histogram: f32,
+    phase: Option<Grid>,
 }
 
 /// Index histogram matching (after Chen and Wang 2010, "High quality solid
@@ -467,6 +487,14 @@ impl Level<'_> {
             (want, buf),
             coords[i * self.m + j],
             (self.coherence, |q| {
+                if let Some(l) = &self.phase {
+                    let off = |a: usize, ax: usize| i64::from(q[a]) - exl.h * p[ax];
+                    if l.axis_error(0, off(0, u), 1.0) > PHASE_TOLERANCE
+                        || l.axis_error(1, off(1, v), 1.0) > PHASE_TOLERANCE
+                    {
+                        return None;
+                    }
+                }
                 Some(usage.map_or(1.0, |u| u.factor(self.view_ex[j], q)))
             }),
         )

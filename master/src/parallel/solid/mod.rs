@@ -30,6 +30,7 @@ use super::driver::{blend, check_exemplar, run_levels, ParallelSettings};
 use super::neighbourhood::Neighbourhood;
 use crate::imaging::volume::Volume;
 use crate::imaging::ColorImage;
+use crate::lattice::Lattice;
 use crate::progress::Progress;
 use crate::search::SearchBackend;
 
@@ -168,6 +169,9 @@ pub fn synthesize(
     }
     for v in views {
         check_exemplar(v.exemplar, &format!("the view across {}", v.axis.name()))?;
+        if let Some(l) = &settings.lattice {
+            l.validate([v.exemplar.width, v.exemplar.height])?;
+        }
     }
     let voxels = size.iter().product::<usize>();
     // Views that share an exemplar share its levels and candidate sets.
@@ -247,6 +251,7 @@ pub fn synthesize(
         weights: None,
         blend: Vec::new(),
         matched: Vec::new(),
+        phase: settings.lattice,
     };
     let levels = run_levels(&mut volume, &uniq, &pca, s, backend, progress)?.len();
     // The blend is done with; freed before the colour and the per-view
@@ -297,6 +302,9 @@ pub struct SolidSettings {
     /// Mirror one view where the three views of one material cannot agree
     /// as they are ([`mirror`]; the job does it, reading the files).
     pub mirror: bool,
+    /// Lattice phase: the exemplars' grid, which every view keeps in phase
+    /// with the voxels ([`lattice::PHASE_TOLERANCE`]; `None`: off).
+    pub lattice: Option<Lattice>,
 }
 
 /// Default weight of the index histogram matching (ARCHITECTURE §11): on
@@ -331,6 +339,7 @@ impl Default for SolidSettings {
             checker_cap: true,
             slice_contrast: true,
             mirror: true,
+            lattice: None,
         }
     }
 }

@@ -355,3 +355,40 @@ fn index_histogram_matching_spreads_the_views_over_the_exemplar_and_sharpens_the
     );
     assert!(l1 < l0, "centre slices' S_L {l0:.4} → {l1:.4}");
 }
+
+/// Lattice phase: with the weave's period every view's coordinate at every
+/// voxel lies within [`lattice::PHASE_TOLERANCE`] of the grid through the
+/// voxel, and the slices come nearer the weave's Laplacian statistics; the
+/// negative control, the same solid without it, has most coordinates off
+/// the grid and its slices further from the weave.
+#[test]
+fn lattice_phase_keeps_a_weave_s_grid_in_every_view() {
+    let grid = crate::lattice::Lattice {
+        period: [13.7, 16.0],
+    };
+    let n = 64;
+    let off_grid = |s: &Solid| {
+        let mut off = 0usize;
+        for (j, axis) in Axis::ALL.into_iter().enumerate() {
+            let [u, v] = axis.plane();
+            for (i, q) in s.coords[j].iter().enumerate() {
+                let p = [i % n, i / n % n, i / (n * n)];
+                let e =
+                    |a: usize, ax: usize| grid.axis_error(a, i64::from(q[a]) - p[ax] as i64, 1.0);
+                off += usize::from(
+                    e(0, u) > lattice::PHASE_TOLERANCE || e(1, v) > lattice::PHASE_TOLERANCE,
+                );
+            }
+        }
+        off as f64 / (3 * n * n * n) as f64
+    };
+    let (ex, kept) = solid_of("burlap_color_96.png", n, |s| {
+        s.mirror = false;
+        s.lattice = Some(grid);
+    });
+    let (_, free) = solid_of("burlap_color_96.png", n, |s| s.mirror = false);
+    assert_eq!(off_grid(&kept), 0.0);
+    assert!(off_grid(&free) > 0.5, "{}", off_grid(&free));
+    let (sk, sf) = (centre_slices_s_l(&ex, &kept), centre_slices_s_l(&ex, &free));
+    assert!(sk < 0.85 * sf, "S_L with the lattice {sk}, without {sf}");
+}
