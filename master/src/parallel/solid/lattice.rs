@@ -4,7 +4,8 @@
 //! each view against the blend's neighbourhood in its plane (eq. 5), the
 //! blend histogram-matched to the exemplars' appearance after every sub-pass
 //! ([`super::histogram`]), and the choice weighted by how often the volume
-//! already uses each exemplar pixel ([`Usage`]).
+//! already uses each exemplar pixel ([`Usage`]). With a lattice phase every
+//! view's offsets stay on the exemplar's grid ([`PHASE_TOLERANCE`]).
 
 use rayon::prelude::*;
 
