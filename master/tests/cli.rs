@@ -1571,10 +1571,11 @@ fn parallel_seven_and_half_take_eight_candidates_and_reduced_its_fine_passes() {
     let spelled = [
         &["--passes", "4", "--fine-passes", "8"][..],
         &["--jitter", "1,0.8,0.5,0.3", "--copy-guard", "0.08"],
-        &["--coarse-neighbourhood", "7", "--coarse-passes", "16"],
+        &["--coarse-neighbourhood", "7", "--coarse-passes", "40"],
     ]
     .concat();
     assert!(reduced == run("reduced-spelled", &spelled));
+    assert!(reduced != run("reduced-coarse-16", &["--coarse-passes", "16"]));
     assert!(reduced != run("reduced-flat", &["--passes", "4"]));
     assert!(reduced != run("reduced-jitter", &["--jitter", "1,0.8,0.6,0.4"]));
     // Its levels above the finest take the 7×7 neighbourhood.

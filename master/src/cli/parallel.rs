@@ -115,8 +115,8 @@ pub struct ParallelArgs {
     #[arg(long, alias = "coarse-neighborhood")]
     pub coarse_neighbourhood: Option<String>,
     /// Correction passes of the levels above the finest where they have
-    /// their own neighbourhood (1 to 64; default 16). --passes sets the
-    /// others.
+    /// their own neighbourhood (1 to 64; default 16, 40 under reduced).
+    /// --passes sets the others.
     #[arg(long)]
     pub coarse_passes: Option<usize>,
     /// Correct every level, as the paper does. By default a level whose
