@@ -91,12 +91,6 @@ impl CoordMap {
     }
 }
 
-/// The jitter of §4.2 at position `p` (2-D positions have `p[2] = 0`):
-/// `J(P) = ⌊j + k⌋` with `j = H(P)·lerp(0.5, 1, r)` and, per axis,
-/// `k = lerp(0.5, 2/3, r)` where `j ≥ 0`, else `1 − lerp(0.5, 2/3, r)`.
-/// `H` hashes the position, level and seed to `[−1, 1)²`, so the jitter does
-/// not depend on the order pixels are visited. At `r = 0` there is no jitter;
-/// at `r = 1` each axis is −1, 0 or +1 with probability 1/3 each.
 /// `v` modulo `n` (`n > 0`), for a neighbour's place on a wrapping lattice
 /// or exemplar: most lie inside, so the division is only paid at the
 /// border (it was a tenth of a solid's time).
@@ -109,6 +103,12 @@ pub fn wrap(v: i64, n: usize) -> usize {
     }
 }
 
+/// The jitter of §4.2 at position `p` (2-D positions have `p[2] = 0`):
+/// `J(P) = ⌊j + k⌋` with `j = H(P)·lerp(0.5, 1, r)` and, per axis,
+/// `k = lerp(0.5, 2/3, r)` where `j ≥ 0`, else `1 − lerp(0.5, 2/3, r)`.
+/// `H` hashes the position, level and seed to `[−1, 1)²`, so the jitter does
+/// not depend on the order pixels are visited. At `r = 0` there is no jitter;
+/// at `r = 1` each axis is −1, 0 or +1 with probability 1/3 each.
 pub fn jitter_offset(p: [i64; 3], r: f64, level: u32, seed: u64) -> [i64; 2] {
     let lerp = |a: f64, b: f64, t: f64| a + t * (b - a);
     let h = position_hash(p, level, seed);
