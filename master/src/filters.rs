@@ -2,7 +2,9 @@
 //! the coordinate method's stack levels (Manke–Wünsche §3) and the blurred
 //! spectra of procedural matching (Bourque–Dudek §3.2); and the 2-D FFT
 //! that `compare`, the tile evaluation and the periodicity analysis share;
-//! and the correlation length, the scale of a texture's objects.
+//! the normalised autocorrelation that the periodicity analysis and lattice
+//! detection read; and the correlation length, the scale of a texture's
+//! objects.
 
 use std::ops::{Add, Sub};
 
@@ -145,6 +147,42 @@ pub fn fft2<T: FftNum>(
             buf[y * w + x] = col[y];
         }
     }
+}
+
+/// The normalised linear autocorrelation of the `w`×`h` values `v`
+/// (row-major, mean removed), on the wrapped lag grid of 2w×2h (lag
+/// `(dx, dy)` at `(dx mod 2w, dy mod 2h)`): each lag divided by its overlap,
+/// then by the variance, so lag 0 is 1; lags of a side or more, and every
+/// lag of a flat image, are 0.
+pub fn autocorrelation(v: &[f64], (w, h): (usize, usize)) -> Vec<f64> {
+    let (pw, ph) = (2 * w, 2 * h);
+    let len = v.len().max(1) as f64;
+    let mean = v.iter().sum::<f64>() / len;
+    let mut buf = vec![Complex::new(0.0, 0.0); pw * ph];
+    for y in 0..h {
+        for x in 0..w {
+            buf[y * pw + x] = Complex::new(v.get(y * w + x).copied().unwrap_or(mean) - mean, 0.0);
+        }
+    }
+    let mut planner = rustfft::FftPlanner::new();
+    let (rows, cols) = (planner.plan_fft_forward(pw), planner.plan_fft_forward(ph));
+    fft2(&mut buf, (pw, ph), ph, (&*rows, &*cols));
+    buf.iter_mut()
+        .for_each(|c| *c = Complex::new(c.norm_sqr(), 0.0));
+    let (rows, cols) = (planner.plan_fft_inverse(pw), planner.plan_fft_inverse(ph));
+    fft2(&mut buf, (pw, ph), ph, (&*rows, &*cols));
+    let zero = buf[0].re;
+    let lag = |k: usize, n: usize| if k > n { 2 * n - k } else { k };
+    (0..pw * ph)
+        .map(|i| {
+            let (x, y) = (lag(i % pw, w), lag(i / pw, h));
+            if zero <= 1e-12 || x >= w || y >= h {
+                return 0.0;
+            }
+            let overlap = ((w - x) * (h - y)) as f64 / (w * h) as f64;
+            buf[i].re / overlap / zero
+        })
+        .collect()
 }
 
 /// The correlation length of a `w`×`h` grey image: the least radius, in

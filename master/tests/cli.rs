@@ -5,7 +5,7 @@ use crate::common;
 
 use std::path::Path;
 
-use common::{assets, s, texsyn};
+use common::{assets, ok, s, texsyn};
 
 /// Runs a command that must fail: non-zero exit, no panic, one error line with
 /// every expected word, and no output file left behind.
@@ -108,6 +108,43 @@ fn good_runs_write_image_copy_map_levels_and_report() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(image::open(&synth_out).unwrap().height(), 48);
+}
+
+/// `--lattice auto` finds the bundled tiles' 32-px grid, records it in the
+/// report, and gives the bytes of that period given by hand; `none` is no
+/// lattice.
+#[test]
+fn lattice_auto_is_the_grid_it_finds() {
+    let dir = tempfile::tempdir().unwrap();
+    let sample = assets().join("tiles_color_256.png");
+    let run = |name: &str, flags: &[&str]| -> (Vec<u8>, serde_json::Value) {
+        let (out, report) = (
+            dir.path().join(format!("{name}.png")),
+            dir.path().join(format!("{name}.json")),
+        );
+        let args = [
+            &["synth", s(&sample), "-o", s(&out), "-q", "--size", "96x80"][..],
+            &["--report", s(&report)],
+            flags,
+        ]
+        .concat();
+        ok(&args);
+        let r: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+        (std::fs::read(&out).unwrap(), r["lattice"].clone())
+    };
+    let (auto, found) = run("auto", &["--lattice", "auto"]);
+    let period = |i: usize| found[i].as_f64().unwrap();
+    assert!((0..2).all(|i| (period(i) - 32.0).abs() < 0.2), "{found}");
+    let given = format!("{}x{}", period(0), period(1));
+    let (by_hand, recorded) = run("given", &["--lattice", &given]);
+    assert!(
+        auto == by_hand,
+        "--lattice auto differs from --lattice {given}"
+    );
+    assert_eq!(recorded, found);
+    let (plain, none) = run("none", &["--lattice", "none"]);
+    assert!(none.is_null() && plain != auto, "{none}");
 }
 
 #[test]
@@ -1440,6 +1477,10 @@ fn synth_defaults_to_path_stitching_and_extend_to_hard() {
         ),
         (
             &["--lattice", "32x32", "--repeat-cap", "20"],
+            &["--lattice", "give one"],
+        ),
+        (
+            &["--lattice", "auto", "--repeat-cap", "20"],
             &["--lattice", "give one"],
         ),
     ] {

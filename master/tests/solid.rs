@@ -159,6 +159,13 @@ fn threads_do_not_change_a_byte() {
             "--size".into(),
             "20x24x16".into(),
         ],
+        // The default `--lattice auto` finds the weave's grid.
+        vec![
+            "--view".to_string(),
+            format!("xyz={}", s(&common::assets().join("burlap_color_96.png"))),
+            "--size".into(),
+            "20x24x16".into(),
+        ],
     ];
     for (k, args) in runs.iter().enumerate() {
         let mut out = Vec::new();
@@ -204,6 +211,34 @@ fn threads_do_not_change_a_byte() {
     };
     assert_eq!(lattice("2_1"), serde_json::json!([13.7, 16.0]));
     assert!(lattice("0_1").is_null());
+    // Found: the weave's period across its threads (the other axis repeats
+    // too weakly to count), the same solid as that period given, and
+    // `none` turns it off.
+    let found = lattice("3_1");
+    let period = |i: usize| found[i].as_f64().unwrap();
+    assert!(
+        (period(0) - 13.8).abs() < 0.3 && period(1) == 0.0,
+        "{found}"
+    );
+    let args: Vec<&str> = runs[3].iter().map(String::as_str).collect();
+    let auto = Volume::load(&dir.path().join("3_1").join("solid.json"))
+        .unwrap()
+        .0;
+    let given = format!("{}x{}", period(0), period(1));
+    let same = solid(
+        &dir.path().join("given"),
+        &[&args[..], &["--lattice", &given, "--slices", "none"]].concat(),
+    );
+    assert!(
+        same == auto,
+        "--lattice {given} differs from the grid auto found"
+    );
+    let none = solid(
+        &dir.path().join("none"),
+        &[&args[..], &["--lattice", "none", "--slices", "none"]].concat(),
+    );
+    assert!(none != auto, "the found grid changed nothing");
+    assert!(lattice("none").is_null());
 }
 
 #[test]

@@ -554,6 +554,12 @@ fn in_phase_share(out: &Output, period: usize) -> f64 {
 #[test]
 fn the_lattice_rule_keeps_a_grid_sample_s_grid() {
     let sample = grid_sample(16, 6);
+    // The grid is what `--lattice auto` finds.
+    let found = texsyn::lattice::detect(&sample).expect("a grid");
+    assert!(
+        found.period.iter().all(|p| (p - 16.0).abs() < 0.1),
+        "{found:?}"
+    );
     let (mode, free) = grown_to_192();
     let on_grid = Config {
         lattice: Some(texsyn::block::Lattice {

@@ -103,6 +103,9 @@ pub struct Config {
     pub lattice: Option<Lattice>,
 }
 
+/// Why the lattice phase and repetition control cannot run together.
+pub const LATTICE_WITH_REPEATS: &str = "--lattice and repetition control both pick among the near-ties; give one (--no-repeat-control turns the control off)";
+
 impl Default for Config {
     fn default() -> Self {
         Self {
@@ -189,7 +192,7 @@ impl Config {
         }
         ensure!(
             self.lattice.is_none() || self.repeats.is_none(),
-            "--lattice and repetition control both pick among the near-ties; give one (--no-repeat-control turns the control off)"
+            "{LATTICE_WITH_REPEATS}"
         );
         Weights::new(self.weights.hi, self.weights.lo)?;
         if let Some(r) = &self.repeats {

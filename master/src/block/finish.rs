@@ -73,6 +73,7 @@ pub(super) fn finish(
         seed: cfg.seed,
         batch: cfg.batch,
         search: backend.name(),
+        lattice: cfg.lattice.map(|l| l.period),
         per_level,
         synthesis_seconds: started.elapsed().as_secs_f64(),
         search_stats: backend.stats(),

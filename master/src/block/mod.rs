@@ -36,7 +36,7 @@ mod repeats;
 pub use crate::lattice::Lattice;
 pub use config::{
     growth_neighbourhood, Config, FillSource, Mode, Position, Stitch, SynthMethod,
-    MAX_CANVAS_PIXELS, PATH_GROWTH_NEIGHBOURHOOD,
+    LATTICE_WITH_REPEATS, MAX_CANVAS_PIXELS, PATH_GROWTH_NEIGHBOURHOOD,
 };
 pub use plan::resolve_levels;
 pub use repeats::RepeatControl;
@@ -125,6 +125,8 @@ pub struct Report {
     pub seed: u64,
     pub batch: usize,
     pub search: String,
+    /// The lattice phase's periods (`--lattice`, given or found), if on.
+    pub lattice: Option<[f64; 2]>,
     pub per_level: Vec<LevelReport>,
     pub synthesis_seconds: f64,
     /// What the search backend reports (plan used, workers, LBG codebooks).

@@ -3,7 +3,7 @@
 
 use anyhow::{bail, ensure, Context, Result};
 
-use crate::lattice::Lattice;
+use crate::lattice::{Lattice, LatticeSpec};
 use crate::{block, imaging};
 
 /// Parses `s`, the value of `flag`, as positive numbers joined by `x` (`WxH`,
@@ -58,20 +58,27 @@ pub fn parse_pair(s: &str, flag: &str) -> Result<(usize, usize)> {
     Ok((d[0], d[1]))
 }
 
-/// Parses `--lattice WxH`: two periods in pixels, fractions allowed.
-pub fn parse_lattice(s: &str) -> Result<Lattice> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .with_context(|| format!("--lattice '{s}' is not WxH, e.g. --lattice 32x32"))?;
+/// Parses `--lattice WxH` (two periods in pixels, fractions allowed),
+/// `--lattice auto` or `--lattice none`.
+pub fn parse_lattice(s: &str) -> Result<LatticeSpec> {
+    if s.trim().eq_ignore_ascii_case("auto") {
+        return Ok(LatticeSpec::Auto);
+    }
+    if s.trim().eq_ignore_ascii_case("none") {
+        return Ok(LatticeSpec::Off);
+    }
+    let (w, h) = s.split_once(['x', 'X']).with_context(|| {
+        format!("--lattice '{s}' is not WxH, auto or none, e.g. --lattice 32x32")
+    })?;
     // The periods' range is checked with the sample (`Lattice::validate`).
     let period = |name: &str, v: &str| -> Result<f64> {
         v.trim().parse().with_context(|| {
             format!("--lattice '{s}': the {name} '{v}' is not a number, e.g. --lattice 32x32")
         })
     };
-    Ok(Lattice {
+    Ok(LatticeSpec::Given(Lattice {
         period: [period("width", w)?, period("height", h)?],
-    })
+    }))
 }
 
 #[cfg(test)]

@@ -14,6 +14,7 @@ use super::block_args::{
 use super::{parallel, parse_size, progress, Common, ParallelArgs};
 use crate::block::{self, Config, FillSource, Mode, Stitch, SynthMethod};
 use crate::imaging::{self, ColorImage, DeepImage, PixelFormat};
+use crate::lattice::{self, LatticeSpec};
 
 /// Rejects outputs of `common` that name the same file, an input of
 /// `inputs` (flag, path) or a level file of `--levels-dir`.
@@ -113,10 +114,14 @@ impl Copies {
 fn run_synthesis(
     sample: &ColorImage,
     mode: Mode,
-    cfg: Config,
+    mut cfg: Config,
     common: &Common,
     copies: Copies,
 ) -> Result<()> {
+    if common.lattice == Some(LatticeSpec::Auto) {
+        cfg.lattice = lattice::detect(sample);
+        super::report_found_lattice(cfg.lattice, common.run.quiet);
+    }
     let size = match &mode {
         Mode::Fill { .. } => (sample.width, sample.height),
         Mode::Extend { width, height, .. } | Mode::Synth { width, height, .. } => (*width, *height),

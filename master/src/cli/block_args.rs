@@ -10,6 +10,7 @@ use texsyn_engine::{Metric, Weights};
 use super::RunArgs;
 use crate::block::{self, Config, Position};
 use crate::imaging;
+use crate::lattice::LatticeSpec;
 
 #[derive(Args, Debug, Clone)]
 pub struct Common {
@@ -98,11 +99,13 @@ pub struct Common {
     /// length by two courses, or 0x29 to keep only courses 29 px apart: 0
     /// leaves an axis free). Of the exact search's near-ties each block
     /// takes the one whose copy offset lies nearest the grid's phase, so
-    /// tiles stay whole and joints line up. Deterministic, and the
-    /// same across threads and workers; cannot be combined with repetition
-    /// control.
-    #[arg(long, value_name = "WxH", value_parser = super::args::parse_lattice)]
-    pub lattice: Option<crate::lattice::Lattice>,
+    /// tiles stay whole and joints line up. `auto` finds the grid in the
+    /// sample (the autocorrelation's period along each axis, where it
+    /// repeats at least three times in half the side) and runs without the
+    /// phase where there is none. Deterministic, and the same across
+    /// threads and workers; cannot be combined with repetition control.
+    #[arg(long, value_name = "WxH|auto", value_parser = super::args::parse_lattice)]
+    pub lattice: Option<crate::lattice::LatticeSpec>,
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
     /// textures whose structure and colour disagree. Runs on this machine.
     #[arg(long)]
@@ -343,9 +346,14 @@ pub fn config_with_defaults(
             Some(StitchArg::Path) => block::Stitch::Path,
         },
         repeats: repeats(c, d.repeats)?,
-        lattice: c.lattice,
+        lattice: c.lattice.and_then(|l| l.given()),
     };
     cfg.validate()?;
+    ensure!(
+        c.lattice != Some(LatticeSpec::Auto) || cfg.repeats.is_none(),
+        "{}",
+        block::LATTICE_WITH_REPEATS
+    );
     Ok(cfg)
 }
 

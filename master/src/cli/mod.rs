@@ -128,6 +128,23 @@ pub fn seconds(flag: &str, v: f64, min: f64, max: f64) -> Result<Duration> {
     Duration::try_from_secs_f64(v).with_context(|| format!("{flag} {v} is not a duration"))
 }
 
+/// Says what `--lattice auto` found: the log, and stderr unless `quiet`.
+fn report_found_lattice(found: Option<crate::lattice::Lattice>, quiet: bool) {
+    let line = match found {
+        Some(l) => format!(
+            "--lattice auto: a grid of {:.2}×{:.2} px (0: that axis free)",
+            l.period[0], l.period[1]
+        ),
+        None => {
+            "--lattice auto: no grid found in the sample; running without the lattice phase".into()
+        }
+    };
+    tracing::info!("{line}");
+    if !quiet {
+        eprintln!("{line}");
+    }
+}
+
 /// Entry point of the binary after argument parsing.
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {

@@ -10,6 +10,7 @@ use super::parallel::{parse_jitter, parse_neighbourhood};
 use super::progress::Bars;
 use super::RunArgs;
 use crate::imaging::volume::Axis;
+use crate::lattice::LatticeSpec;
 use crate::parallel::solid::{
     self, ReplayFiles, SolidJob, SolidSettings, ViewFile, WeightFiles, MAX_EDGE,
 };
@@ -79,9 +80,13 @@ pub struct SolidArgs {
     /// mosaic): the grid's period WxH in exemplar pixels (fractions allowed,
     /// e.g. 13.7x16; 0 leaves an axis free). Every view's coordinates are
     /// kept within a pixel of the grid's phase at the voxel, so the slices
-    /// show the grid instead of blotches; it applies to every view
-    #[arg(long, value_name = "WxH", value_parser = super::args::parse_lattice)]
-    pub lattice: Option<crate::lattice::Lattice>,
+    /// show the grid instead of blotches; it applies to every view. The
+    /// default, `auto`, finds the grid in the exemplars where every distinct
+    /// exemplar shows the same one and its cells look alike (a weave, one
+    /// kind of tile; not tiles of many colours, whose views would mix), and
+    /// runs without the phase elsewhere; `none` turns it off
+    #[arg(long, value_name = "WxH|auto", value_parser = super::args::parse_lattice)]
+    pub lattice: Option<crate::lattice::LatticeSpec>,
     /// Keep every view as given: by default, where the three views of one
     /// material cannot agree (their gradient correlations, streaks along the
     /// exemplar's anti-diagonal on all three, have no solid), one view's
@@ -262,7 +267,7 @@ impl TryFrom<&SolidArgs> for SolidJob {
                 checker_cap: !a.no_checker_cap,
                 slice_contrast: !a.no_slice_contrast,
                 mirror: !a.no_mirror,
-                lattice: a.lattice,
+                lattice: a.lattice.unwrap_or(LatticeSpec::Auto),
             },
             weights,
             slices: parse_slices(&a.slices)?,
@@ -282,6 +287,13 @@ pub fn run(a: &SolidArgs) -> Result<()> {
     let mut opened = a.run.open(a.seed, 0)?;
     let bars = Bars::new(a.run.quiet);
     let summary = pool.install(|| job.run(&mut opened.search, &bars))?;
+    match (a.lattice, summary.lattice) {
+        (None | Some(LatticeSpec::Auto), Some(found)) => {
+            super::report_found_lattice(Some(found), a.run.quiet);
+        }
+        (Some(LatticeSpec::Auto), None) => super::report_found_lattice(None, a.run.quiet),
+        _ => {}
+    }
     if !a.run.quiet {
         let s = job.size;
         eprintln!(

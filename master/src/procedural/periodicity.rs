@@ -8,10 +8,8 @@
 //! is the structure term that ranks shader families: planks repeat in one
 //! direction, a grid of bricks in two.
 
-use rustfft::{num_complex::Complex, FftPlanner};
-
 use super::shaders::{Layout, Shader};
-use crate::filters::{box_blur_2d, fft2};
+use crate::filters::{autocorrelation, box_blur_2d};
 
 /// Directions in which the period is read, over 180°.
 pub const DIRECTIONS: usize = 36;
@@ -88,7 +86,7 @@ impl Periodicity {
             }
         }
         let high: Vec<f64> = v.iter().zip(&low).map(|(a, b)| a - b).collect();
-        let rho = autocorrelation(&high, n);
+        let rho = autocorrelation(&high, (n, n));
         let m = 2 * n;
         let at = |x: f64, y: f64| -> f64 {
             // Bilinear over the wrapped lag grid.
@@ -273,40 +271,6 @@ pub fn seeded(s: &Shader, base: &[f64], per: &Periodicity) -> Option<Vec<f64>> {
         }
     }
     Some(s.legal(&p))
-}
-
-/// The normalised linear autocorrelation of `v` (`n`×`n`), on the wrapped
-/// lag grid of side 2n: each lag divided by its overlap, then by the
-/// variance, so lag 0 is 1.
-fn autocorrelation(v: &[f64], n: usize) -> Vec<f64> {
-    let m = 2 * n;
-    let len = v.len().max(1) as f64;
-    let mean = v.iter().sum::<f64>() / len;
-    let mut buf = vec![Complex::new(0.0, 0.0); m * m];
-    for y in 0..n {
-        for x in 0..n {
-            buf[y * m + x] = Complex::new(v.get(y * n + x).copied().unwrap_or(mean) - mean, 0.0);
-        }
-    }
-    let mut planner = FftPlanner::new();
-    let plan = planner.plan_fft_forward(m);
-    fft2(&mut buf, (m, m), m, (&*plan, &*plan));
-    buf.iter_mut()
-        .for_each(|c| *c = Complex::new(c.norm_sqr(), 0.0));
-    let plan = planner.plan_fft_inverse(m);
-    fft2(&mut buf, (m, m), m, (&*plan, &*plan));
-    let zero = buf[0].re;
-    let lag = |k: usize| if k > n { m - k } else { k };
-    (0..m * m)
-        .map(|i| {
-            let (x, y) = (lag(i % m), lag(i / m));
-            if zero <= 1e-12 || x >= n || y >= n {
-                return 0.0;
-            }
-            let overlap = ((n - x) * (n - y)) as f64 / (n * n) as f64;
-            buf[i].re / overlap / zero
-        })
-        .collect()
 }
 
 /// The direction index nearest `degrees`.

@@ -59,6 +59,8 @@ pub struct SolidJob {
 pub struct SolidSummary {
     pub levels: usize,
     pub seconds: f64,
+    /// The lattice phase's grid, as given or found (`None`: off).
+    pub lattice: Option<crate::lattice::Lattice>,
 }
 
 impl SolidJob {
@@ -229,6 +231,7 @@ impl SolidJob {
         Ok(SolidSummary {
             levels: out.levels,
             seconds,
+            lattice: out.lattice,
         })
     }
 
@@ -320,7 +323,7 @@ impl SolidJob {
             "band_matching": s.band_matching,
             "checker_cap": s.checker_cap,
             "slice_contrast": s.slice_contrast,
-            "lattice": s.lattice.map(|l| l.period),
+            "lattice": out.lattice.map(|l| l.period),
             "mirrored_views": mirrored.iter().map(|a| a.name().to_string()).collect::<Vec<_>>(),
             "seed": s.base.seed,
             "levels": out.levels,

@@ -30,7 +30,7 @@ use super::driver::{blend, check_exemplar, run_levels, ParallelSettings};
 use super::neighbourhood::Neighbourhood;
 use crate::imaging::volume::Volume;
 use crate::imaging::ColorImage;
-use crate::lattice::Lattice;
+use crate::lattice::{Lattice, LatticeSpec};
 use crate::progress::Progress;
 use crate::search::SearchBackend;
 
@@ -99,6 +99,8 @@ pub struct Solid {
     /// [`contrast::BAND`] of the exemplars' ([`contrast::even_slices`]),
     /// which [`replay`] applies too.
     pub slice_contrast: bool,
+    /// The lattice phase's grid, as given or found (`None`: off).
+    pub lattice: Option<Lattice>,
 }
 
 /// Bytes a solid of `size` with `views` views, `materials` materials and
@@ -169,10 +171,8 @@ pub fn synthesize(
     }
     for v in views {
         check_exemplar(v.exemplar, &format!("the view across {}", v.axis.name()))?;
-        if let Some(l) = &settings.lattice {
-            l.validate([v.exemplar.width, v.exemplar.height])?;
-        }
     }
+    let grid = phase_grid(settings.lattice, views)?;
     let voxels = size.iter().product::<usize>();
     // Views that share an exemplar share its levels and candidate sets.
     let mut uniq: Vec<&ColorImage> = Vec::new();
@@ -251,7 +251,7 @@ pub fn synthesize(
         weights: None,
         blend: Vec::new(),
         matched: Vec::new(),
-        phase: settings.lattice,
+        phase: grid,
     };
     let levels = run_levels(&mut volume, &uniq, &pca, s, backend, progress)?.len();
     // The blend is done with; freed before the colour and the per-view
@@ -276,6 +276,7 @@ pub fn synthesize(
         band_matching: settings.band_matching,
         checker_cap: settings.checker_cap,
         slice_contrast: settings.slice_contrast,
+        lattice: grid,
     };
     let exemplars: Vec<ColorImage> = views.iter().map(|v| v.exemplar.clone()).collect();
     solid.colour = replay(&solid, &exemplars, 3)?.data;
@@ -303,8 +304,72 @@ pub struct SolidSettings {
     /// as they are ([`mirror`]; the job does it, reading the files).
     pub mirror: bool,
     /// Lattice phase: the exemplars' grid, which every view keeps in phase
-    /// with the voxels ([`lattice::PHASE_TOLERANCE`]; `None`: off).
-    pub lattice: Option<Lattice>,
+    /// with the voxels ([`lattice::PHASE_TOLERANCE`]), as given, found in
+    /// the exemplars ([`phase_grid`]; the default) or off.
+    pub lattice: LatticeSpec,
+}
+
+/// `--lattice auto` keeps a grid found in the exemplars only where its
+/// cells look alike: at most this share of the exemplar's colour variance
+/// lies between them ([`Lattice::cell_share`]). The three views of a voxel
+/// keep their grids in phase but each may copy another cell, so where every
+/// cell has its own colour (the bundled coloured tiles, 0.70) they mix into
+/// washed, false colours; a weave (burlap 0.004) and a mosaic of one kind
+/// of tile (the facade, 0.22) keep their grid.
+pub const CELLS_ALIKE: f64 = 0.5;
+
+/// The lattice phase's grid for `views`: the given one, checked against
+/// every exemplar, or for `auto` the grid [`crate::lattice::detect`] finds,
+/// where every distinct exemplar shows the same one (periods within a
+/// pixel) with cells alike ([`CELLS_ALIKE`]); none where one shows none,
+/// they differ, or the cells do not look alike, since one grid holds every
+/// view in phase.
+fn phase_grid(spec: LatticeSpec, views: &[View]) -> Result<Option<Lattice>> {
+    match spec {
+        LatticeSpec::Off => Ok(None),
+        LatticeSpec::Given(l) => {
+            for v in views {
+                l.validate([v.exemplar.width, v.exemplar.height])?;
+            }
+            Ok(Some(l))
+        }
+        LatticeSpec::Auto => {
+            let mut seen: Vec<&ColorImage> = Vec::new();
+            let mut grids = Vec::new();
+            for v in views {
+                if !seen
+                    .iter()
+                    .any(|e| std::ptr::eq(*e, v.exemplar) || **e == *v.exemplar)
+                {
+                    seen.push(v.exemplar);
+                    grids.push(
+                        crate::lattice::detect(v.exemplar).map(|l| (l, l.cell_share(v.exemplar))),
+                    );
+                }
+            }
+            let Some((first, _)) = grids[0] else {
+                return Ok(None);
+            };
+            let same = |g: &Option<(Lattice, f64)>| match g {
+                Some((l, _)) => (0..2).all(|i| (l.period[i] - first.period[i]).abs() <= 1.0),
+                None => false,
+            };
+            if !grids.iter().all(same) {
+                tracing::info!("the exemplars show different grids or none; no lattice phase");
+                return Ok(None);
+            }
+            let share = grids.iter().flatten().map(|g| g.1).fold(0.0, f64::max);
+            if share > CELLS_ALIKE {
+                tracing::info!(
+                    period = ?first.period,
+                    cell_share = share,
+                    "the exemplar's grid cells differ in colour; no lattice phase (--lattice WxH forces it)"
+                );
+                return Ok(None);
+            }
+            Ok(Some(first))
+        }
+    }
 }
 
 /// Default weight of the index histogram matching (ARCHITECTURE §11): on
@@ -339,7 +404,7 @@ impl Default for SolidSettings {
             checker_cap: true,
             slice_contrast: true,
             mirror: true,
-            lattice: None,
+            lattice: LatticeSpec::Auto,
         }
     }
 }

@@ -384,7 +384,7 @@ fn lattice_phase_keeps_a_weave_s_grid_in_every_view() {
     };
     let (ex, kept) = solid_of("burlap_color_96.png", n, |s| {
         s.mirror = false;
-        s.lattice = Some(grid);
+        s.lattice = crate::lattice::LatticeSpec::Given(grid);
     });
     let (_, free) = solid_of("burlap_color_96.png", n, |s| s.mirror = false);
     assert_eq!(off_grid(&kept), 0.0);
