@@ -167,6 +167,13 @@ impl Lattice {
     }
 }
 
+/// How far, in exemplar pixels, a coordinate method's candidate offset
+/// (coordinate less `h` times the pixel's or voxel's place) may lie from
+/// the grid along each axis under lattice phase (ARCHITECTURE §10, §11).
+/// Half a pixel let too few candidates through and a solid's weave blurred;
+/// one and two pixels kept it alike.
+pub const PHASE_TOLERANCE: f64 = 1.0;
+
 /// Shortest period [`detect`] reports, in pixels.
 const MIN_PERIOD: usize = 3;
 /// A period's peak must rise this far above the lowest correlation before

@@ -1681,8 +1681,8 @@ fn parallel_seven_and_half_take_eight_candidates_and_reduced_its_fine_passes() {
                 "--coarse-neighbourhood 7",
             ),
             (
-                &["--method", "parallel", "--lattice", "32x32"],
-                "--lattice belongs to the block method",
+                &["--method", "parallel", "--lattice", "500x32"],
+                "larger than the sample",
             ),
         ],
     );

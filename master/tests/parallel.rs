@@ -250,6 +250,58 @@ fn replay_through_the_coordinates_reproduces_the_output_of_both_methods() {
     assert_ne!(coords(&d("par_c.png")).2, coords(&d("block_c.png")).2);
 }
 
+/// Lattice phase (ARCHITECTURE §10), found by default: on the coloured
+/// tiles every pixel's offset from the sample stays within a pixel of the
+/// 32-px grid, where without it the grid slips; the same bytes on 1 and 2
+/// threads.
+#[test]
+fn a_grid_sample_keeps_its_phase_by_default() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |f: &str| dir.path().join(f);
+    let sample = common::assets().join("tiles_color_256.png");
+    let run = |name: &str, extra: &[&str]| {
+        let (out, map) = (d(&format!("{name}.png")), d(&format!("{name}_c.png")));
+        let base = [
+            "synth",
+            s(&sample),
+            "--method",
+            "parallel",
+            "--size",
+            "160x128",
+            "-q",
+            "-o",
+        ];
+        ok(&[&base[..], &[s(&out), "--coords", s(&map)], extra].concat());
+        (std::fs::read(&out).unwrap(), coords(&map))
+    };
+    // The share of pixels whose offset (coordinate less position) lies
+    // within a pixel of a multiple of 32 on both axes: the sample's joints
+    // sit at multiples of 32.
+    let in_phase = |(w, _, c): &(u32, u32, Vec<[u32; 2]>)| {
+        let near = |v: i64| v.rem_euclid(32).min(32 - v.rem_euclid(32)) <= 1;
+        let kept = c
+            .iter()
+            .enumerate()
+            .filter(|(i, q)| {
+                let (x, y) = ((*i as u32 % w) as i64, (*i as u32 / w) as i64);
+                near(i64::from(q[0]) - x) && near(i64::from(q[1]) - y)
+            })
+            .count();
+        kept as f64 / c.len() as f64
+    };
+    let (found, found_map) = run("found", &["--threads", "1"]);
+    let (two, _) = run("two", &["--threads", "2"]);
+    let (_, none_map) = run("none", &["--lattice", "none"]);
+    let (on, off) = (in_phase(&found_map), in_phase(&none_map));
+    eprintln!("in phase: {off:.3} without the lattice, {on:.3} with it");
+    assert!(on > 0.99, "the grid's phase is kept: {on}");
+    assert!(off < on - 0.2, "without it the grid slips: {off}");
+    assert!(
+        found == two,
+        "1 and 2 threads differ under the lattice phase"
+    );
+}
+
 #[test]
 fn threads_do_not_change_a_byte() {
     let dir = tempfile::tempdir().unwrap();
@@ -550,6 +602,8 @@ fn coarse_levels_with_the_full_neighbourhood_lay_out_a_grid() {
             "--method",
             "parallel",
             "-q",
+            "--lattice",
+            "none",
         ];
         ok(&[&base[..], extra].concat());
         let b = texsyn::imaging::load_color(&out).unwrap();
@@ -561,7 +615,9 @@ fn coarse_levels_with_the_full_neighbourhood_lay_out_a_grid() {
             &format!("{n}-same.png"),
             &["--neighbourhood", n, "--coarse-neighbourhood", "same"],
         );
-        eprintln!("{n}: patch fidelity {same:.2} with one neighbourhood, {coarse:.2} with 7×7 coarse levels");
+        eprintln!(
+            "{n}: patch fidelity {same:.2} with one neighbourhood, {coarse:.2} with 7×7 coarse levels"
+        );
         assert!(
             coarse < 0.9 * same,
             "{n}: the 7×7 coarse levels lay out the grid: {coarse} against {same}"

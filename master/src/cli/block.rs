@@ -350,14 +350,13 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
         ("--repeat-percent", c.repeat_percent.is_some()),
         ("--repeat-seam", c.repeat_seam.is_some()),
         ("--repeat-cap", c.repeat_cap.is_some()),
-        ("--lattice", c.lattice.is_some()),
         ("--no-repeat-control", c.no_repeat_control),
         ("--levels-dir", c.levels_dir.is_some()),
         ("--report", c.report.is_some()),
     ];
     if let Some(flag) = first_given(&block_flags) {
         anyhow::bail!(
-            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --fine-passes, --copy-guard, --k, --coherence, --coarse-neighbourhood, --coarse-passes, --seed, --coords and the run flags)"
+            "{flag} belongs to the block method and --method parallel would ignore it; drop it (--method parallel takes --neighbourhood, --jitter, --start, --correct-every-level, --histogram, --passes, --fine-passes, --copy-guard, --k, --coherence, --coarse-neighbourhood, --coarse-passes, --lattice, --seed, --coords and the run flags)"
         );
     }
     let args = ParallelArgs {
@@ -377,6 +376,7 @@ fn run_parallel(a: &SynthArgs) -> Result<()> {
             .histogram
             .unwrap_or(crate::parallel::driver::DEFAULT_HISTOGRAM),
         candidate_cache: a.candidate_cache.clone(),
+        lattice: c.lattice,
         run: c.run.clone(),
     };
     parallel::run_synth(&a.input, &a.size, &c.output, c.copy_map.as_deref(), &args)

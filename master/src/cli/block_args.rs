@@ -101,9 +101,12 @@ pub struct Common {
     /// takes the one whose copy offset lies nearest the grid's phase, so
     /// tiles stay whole and joints line up. `auto` finds the grid in the
     /// sample (the autocorrelation's period along each axis, where it
-    /// repeats at least three times in half the side) and runs without the
-    /// phase where there is none. Deterministic, and the same across
-    /// threads and workers; cannot be combined with repetition control.
+    /// repeats cleanly at least three times) and runs without the phase
+    /// where there is none; `none` is off, the block method's default.
+    /// Deterministic, and the same across threads and workers; cannot be
+    /// combined with repetition control. With --method parallel the grid
+    /// is found by default: every pixel's offset from the sample is kept
+    /// within a pixel of the grid's phase.
     #[arg(long, value_name = "WxH|auto", value_parser = super::args::parse_lattice)]
     pub lattice: Option<crate::lattice::LatticeSpec>,
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
@@ -212,8 +215,8 @@ pub struct SynthArgs {
     pub fine_passes: Option<usize>,
     /// --method parallel: copy guard, the largest share of the output one
     /// offset from the sample may grow to (0 < share < 1; 0: off; default
-    /// 0.08 for --neighbourhood 5, reduced and half, off for
-    /// the others).
+    /// 0.08 for --neighbourhood 5, reduced and half, and for every
+    /// neighbourhood under lattice phase; off for the others).
     #[arg(long)]
     pub copy_guard: Option<f32>,
     /// --method parallel: k of the k-coherence candidate sets (1 to 16;

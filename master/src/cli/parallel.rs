@@ -10,9 +10,12 @@ use clap::Args;
 use super::progress::Bars;
 use super::{parse_size, RunArgs};
 use crate::imaging::{self, ColorImage};
+use crate::lattice::{Lattice, LatticeSpec};
 use crate::parallel::cache::CandidateCache;
 use crate::parallel::candidates::MAX_K;
-use crate::parallel::driver::{default_coherence, CoarseLevels, Start, COARSE_PASSES};
+use crate::parallel::driver::{
+    default_coherence, CoarseLevels, Start, COARSE_PASSES, LATTICE_COPY_GUARD,
+};
 use crate::parallel::synth::{self, MorphColour, Neighbourhood, ParallelSettings, Synthesis};
 use crate::parallel::weights;
 
@@ -92,8 +95,8 @@ pub struct ParallelArgs {
     /// Copy guard: no pixel moves to an offset from the exemplar that more
     /// than this share of the level already holds, so no copy of the
     /// exemplar grows past it (0 < share < 1; 0: off, the paper's; default
-    /// 0.08 for the 5, reduced and half neighbourhoods in `synth`, off for the
-    /// others).
+    /// 0.08 for the 5, reduced and half neighbourhoods in `synth`, and for
+    /// every neighbourhood under lattice phase; off for the others).
     #[arg(long)]
     pub copy_guard: Option<f32>,
     /// k of the k-coherence candidate sets (1 to 16): each pixel compares
@@ -119,6 +122,10 @@ pub struct ParallelArgs {
     /// --passes sets the others.
     #[arg(long)]
     pub coarse_passes: Option<usize>,
+    /// Lattice phase of `synth` (`--lattice`, ARCHITECTURE §10): given, found
+    /// in the sample (the default, `None`), or off. Morphs take none.
+    #[arg(skip)]
+    pub lattice: Option<LatticeSpec>,
     /// Correct every level, as the paper does. By default a level whose
     /// neighbourhood spans half the exemplar's smaller side or more is only
     /// jittered: there the exemplar itself is the one neighbourhood that
@@ -309,8 +316,15 @@ impl ParallelArgs {
         size: (usize, usize),
         colour: MorphColour,
         morph: bool,
+        lattice: Option<Lattice>,
     ) -> Result<Synthesis> {
-        let settings = self.settings(colour, morph)?;
+        let mut settings = ParallelSettings {
+            lattice,
+            ..self.settings(colour, morph)?
+        };
+        if lattice.is_some() && self.copy_guard.is_none() {
+            settings.copy_guard = settings.copy_guard.or(Some(LATTICE_COPY_GUARD));
+        }
         let pool = self.run.pool()?;
         let largest = exemplars
             .iter()
@@ -354,9 +368,31 @@ pub fn run_synth(
     let deep = imaging::load_image(input)?;
     imaging::check_output_format(output, deep.format)?;
     let sample = deep.search_colour();
+    // The grid is found by default (ARCHITECTURE §10).
+    let lattice = match args.lattice.unwrap_or(LatticeSpec::Auto) {
+        LatticeSpec::Auto => {
+            let found = crate::lattice::detect(&sample);
+            if found.is_some() || args.lattice.is_some() {
+                super::report_found_lattice(found, args.run.quiet);
+            }
+            found
+        }
+        LatticeSpec::Given(l) => {
+            l.validate([sample.width, sample.height])?;
+            Some(l)
+        }
+        LatticeSpec::Off => None,
+    };
     let ones = vec![vec![1.0f32; size.0 * size.1]];
     let t = Instant::now();
-    let out = args.run(&[&sample], &ones, size, MorphColour::default(), false)?;
+    let out = args.run(
+        &[&sample],
+        &ones,
+        size,
+        MorphColour::default(),
+        false,
+        lattice,
+    )?;
     let image = deep.rebuild(&out.coords[0].coords, size.0, size.1, None)?;
     imaging::save_image(output, &image)?;
     if let Some(p) = coords {
@@ -417,7 +453,7 @@ pub fn run_morph(a: &MorphArgs) -> Result<()> {
     };
     let refs: Vec<&ColorImage> = images.iter().collect();
     let t = Instant::now();
-    let out = a.settings.run(&refs, &maps, size, colour, true)?;
+    let out = a.settings.run(&refs, &maps, size, colour, true, None)?;
     imaging::save_color(&a.output, &out.image)?;
     for (p, c) in coord_paths.iter().zip(&out.coords) {
         imaging::save_coord_map(p, size.0, size.1, &c.coords)?;

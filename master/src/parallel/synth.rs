@@ -15,6 +15,7 @@ use super::driver::{
 use super::exemplar::ExemplarLevel;
 use super::histogram::Matching;
 use crate::imaging::ColorImage;
+use crate::lattice::{Lattice as Grid, PHASE_TOLERANCE};
 use crate::progress::Progress;
 use crate::search::SearchBackend;
 
@@ -97,6 +98,7 @@ pub fn morph(
         start: s.start,
         histogram: s.histogram,
         copy_guard: s.copy_guard,
+        phase: s.lattice,
         maps: vec![None; exemplars.len()],
         level: None,
         blend: Vec::new(),
@@ -261,6 +263,8 @@ struct Plane<'a> {
     histogram: f32,
     /// The copy guard's share ([`ParallelSettings::copy_guard`]).
     copy_guard: Option<f32>,
+    /// The grid every offset keeps ([`ParallelSettings::lattice`]).
+    phase: Option<Grid>,
     /// Every exemplar's coordinates of the last finished level.
     maps: Vec<Option<CoordMap>>,
     /// The level being corrected, and its weight maps.
@@ -292,6 +296,16 @@ impl Lattice for Plane<'_> {
                 Some(c) => c.upsample(lw, lh, dims, h as u32),
             };
             map.jitter(dims, h as u32, r, level as u32, exemplar_seed(self.seed, j));
+            if let Some(l) = &self.phase {
+                // Back onto the lattice the jitter moved it off.
+                for (i, c) in map.coords.iter_mut().enumerate() {
+                    let p = [(i % lw) as i64, (i / lw) as i64];
+                    for (a, n) in [(0, e.width), (1, e.height)] {
+                        let o = l.nearest(a, i64::from(c[a]) - h as i64 * p[a]);
+                        c[a] = (h as i64 * p[a] + o).rem_euclid(n as i64) as u32;
+                    }
+                }
+            }
             level_maps.push(map);
         }
         self.level = Some((Levels::of(&level_maps), level_weights));
@@ -333,7 +347,7 @@ impl Lattice for Plane<'_> {
                     matching.as_ref().map(|m| (m, strength)),
                     &mut matched,
                     coherence,
-                    self.copy_guard,
+                    (self.copy_guard, self.phase.as_ref()),
                 );
                 progress.advance(1);
             }
@@ -536,7 +550,7 @@ fn correct(
     matching: Option<(&Matching, f32)>,
     matched: &mut Vec<f32>,
     coherence: f32,
-    guard: Option<f32>,
+    (guard, phase): (Option<f32>, Option<&Grid>),
 ) -> Levels {
     blend_appearance(lv, weights, ex, blend);
     let blend: &[f32] = match matching {
@@ -577,7 +591,12 @@ fn correct(
                                 // Most levels close nothing: no offset to take.
                                 let closed = !crowded[e].is_empty()
                                     && crowded[e].binary_search(&exl.offset(q, (x, y))).is_ok();
-                                (!closed).then_some(1.0)
+                                let off_grid = phase.is_some_and(|l| {
+                                    let off = |a: usize, p: i64| i64::from(q[a]) - exl.h * p;
+                                    l.axis_error(0, off(0, x), 1.0) > PHASE_TOLERANCE
+                                        || l.axis_error(1, off(1, y), 1.0) > PHASE_TOLERANCE
+                                });
+                                (!closed && !off_grid).then_some(1.0)
                             }),
                         );
                     }

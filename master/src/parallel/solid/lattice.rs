@@ -64,12 +64,7 @@ pub(super) struct Volume<'a> {
     pub phase: Option<Grid>,
 }
 
-/// Lattice phase (ARCHITECTURE §11): how far, in exemplar pixels, a
-/// candidate's offset (coordinate less `h` times the voxel's place in the
-/// view's plane) may lie from the grid along each axis. Half a pixel let
-/// too few candidates through and the weave blurred; one and two pixels
-/// kept it alike.
-pub const PHASE_TOLERANCE: f64 = 1.0;
+pub use crate::lattice::PHASE_TOLERANCE;
 
 impl Lattice for Volume<'_> {
     const SUB_PASSES: usize = SUB_PASSES.len();
