@@ -107,7 +107,7 @@ pub struct Common {
     /// combined with repetition control. With --method parallel the grid
     /// is found by default: every pixel's offset from the sample is kept
     /// within a pixel of the grid's phase.
-    #[arg(long, value_name = "WxH|auto", value_parser = super::args::parse_lattice)]
+    #[arg(long, value_name = "WxH|auto|none", value_parser = super::args::parse_lattice)]
     pub lattice: Option<crate::lattice::LatticeSpec>,
     /// Full-colour search: compare Y, Cb and Cr neighbourhoods (3× the work), for
     /// textures whose structure and colour disagree. Runs on this machine.

@@ -85,7 +85,7 @@ pub struct SolidArgs {
     /// exemplar shows the same one and its cells look alike (a weave, one
     /// kind of tile; not tiles of many colours, whose views would mix), and
     /// runs without the phase elsewhere; `none` turns it off
-    #[arg(long, value_name = "WxH|auto", value_parser = super::args::parse_lattice)]
+    #[arg(long, value_name = "WxH|auto|none", value_parser = super::args::parse_lattice)]
     pub lattice: Option<crate::lattice::LatticeSpec>,
     /// Keep every view as given: by default, where the three views of one
     /// material cannot agree (their gradient correlations, streaks along the
