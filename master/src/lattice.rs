@@ -179,7 +179,9 @@ const MIN_PERIOD: usize = 3;
 /// A period's peak must rise this far above the lowest correlation before
 /// it, and each repeat of it three quarters as far above the trough before
 /// that repeat. Over the 30 samples of the bundled set and the shared
-/// textures, 0.12 to 0.15 find the same five grids (ARCHITECTURE §3.14).
+/// textures, a prototype of this rule (read to half the side, without the
+/// test between repeats) found the same five grids at 0.12 to 0.15
+/// (ARCHITECTURE §3.14).
 const PROMINENCE: f64 = 0.15;
 /// A period is a lattice's only where it repeats at least this many times
 /// within [`REACH`]: a single hump at the objects' spacing is not a grid.
