@@ -135,6 +135,22 @@ impl Lattice {
         between / variance
     }
 
+    /// A coordinate method's coordinate `c` on an exemplar of `size`, moved
+    /// to the nearest one whose offset from `origin` (`h` times the pixel's
+    /// or voxel's place in the exemplar's plane) lies on the grid, wrapped.
+    pub fn snap(&self, c: [u32; 2], origin: [i64; 2], size: [usize; 2]) -> [u32; 2] {
+        std::array::from_fn(|a| {
+            let o = self.nearest(a, i64::from(c[a]) - origin[a]);
+            (origin[a] + o).rem_euclid(size[a] as i64) as u32
+        })
+    }
+
+    /// Whether the coordinate `q`'s offset from `origin` lies within
+    /// [`PHASE_TOLERANCE`] of the grid on both axes.
+    pub fn holds(&self, q: [u32; 2], origin: [i64; 2]) -> bool {
+        (0..2).all(|a| self.axis_error(a, i64::from(q[a]) - origin[a], 1.0) <= PHASE_TOLERANCE)
+    }
+
     /// How far, in tenths of a pixel of `level` (0 = finest), the copy
     /// `offset` lies from the lattice through `origin` (both canvas position
     /// less sample position on that level), rounded.

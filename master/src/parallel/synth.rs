@@ -15,7 +15,7 @@ use super::driver::{
 use super::exemplar::ExemplarLevel;
 use super::histogram::Matching;
 use crate::imaging::ColorImage;
-use crate::lattice::{Lattice as Grid, PHASE_TOLERANCE};
+use crate::lattice::Lattice as Grid;
 use crate::progress::Progress;
 use crate::search::SearchBackend;
 
@@ -299,11 +299,8 @@ impl Lattice for Plane<'_> {
             if let Some(l) = &self.phase {
                 // Back onto the lattice the jitter moved it off.
                 for (i, c) in map.coords.iter_mut().enumerate() {
-                    let p = [(i % lw) as i64, (i / lw) as i64];
-                    for (a, n) in [(0, e.width), (1, e.height)] {
-                        let o = l.nearest(a, i64::from(c[a]) - h as i64 * p[a]);
-                        c[a] = (h as i64 * p[a] + o).rem_euclid(n as i64) as u32;
-                    }
+                    let origin = [(i % lw * h) as i64, (i / lw * h) as i64];
+                    *c = l.snap(*c, origin, [e.width, e.height]);
                 }
             }
             level_maps.push(map);
@@ -591,11 +588,8 @@ fn correct(
                                 // Most levels close nothing: no offset to take.
                                 let closed = !crowded[e].is_empty()
                                     && crowded[e].binary_search(&exl.offset(q, (x, y))).is_ok();
-                                let off_grid = phase.is_some_and(|l| {
-                                    let off = |a: usize, p: i64| i64::from(q[a]) - exl.h * p;
-                                    l.axis_error(0, off(0, x), 1.0) > PHASE_TOLERANCE
-                                        || l.axis_error(1, off(1, y), 1.0) > PHASE_TOLERANCE
-                                });
+                                let off_grid =
+                                    phase.is_some_and(|l| !l.holds(q, [exl.h * x, exl.h * y]));
                                 (!closed && !off_grid).then_some(1.0)
                             }),
                         );

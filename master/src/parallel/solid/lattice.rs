@@ -5,7 +5,7 @@
 //! blend histogram-matched to the exemplars' appearance after every sub-pass
 //! ([`super::histogram`]), and the choice weighted by how often the volume
 //! already uses each exemplar pixel ([`Usage`]). With a lattice phase every
-//! view's offsets stay on the exemplar's grid ([`PHASE_TOLERANCE`]).
+//! view's offsets stay on the exemplar's grid ([`crate::lattice::PHASE_TOLERANCE`]).
 
 use rayon::prelude::*;
 
@@ -60,11 +60,9 @@ pub(super) struct Volume<'a> {
     /// The blend histogram-matched, which the neighbourhoods are gathered
     /// from (empty when the strength is 0).
     pub matched: Vec<f32>,
-    /// The exemplars' grid, which every view's offsets keep ([`PHASE_TOLERANCE`]).
+    /// The exemplars' grid, which every view's offsets keep ([`crate::lattice::PHASE_TOLERANCE`]).
     pub phase: Option<Grid>,
 }
-
-pub use crate::lattice::PHASE_TOLERANCE;
 
 impl Lattice for Volume<'_> {
     const SUB_PASSES: usize = SUB_PASSES.len();
@@ -97,10 +95,8 @@ impl Lattice for Volume<'_> {
                 if let Some(l) = &phase {
                     // Back onto the lattice the jitter moved it off.
                     let [u, w] = v.axis.plane();
-                    for (a, (ax, n)) in [(0, (u, ew)), (1, (w, eh))] {
-                        let o = l.nearest(a, i64::from(c[a]) - h as i64 * p[ax]);
-                        c[a] = (h as i64 * p[ax] + o).rem_euclid(n) as u32;
-                    }
+                    let origin = [h as i64 * p[u], h as i64 * p[w]];
+                    *c = l.snap(*c, origin, [ew as usize, eh as usize]);
                 }
             }
         });
@@ -484,10 +480,7 @@ impl Level<'_> {
             coords[i * self.m + j],
             (self.coherence, |q| {
                 if let Some(l) = &self.phase {
-                    let off = |a: usize, ax: usize| i64::from(q[a]) - exl.h * p[ax];
-                    if l.axis_error(0, off(0, u), 1.0) > PHASE_TOLERANCE
-                        || l.axis_error(1, off(1, v), 1.0) > PHASE_TOLERANCE
-                    {
+                    if !l.holds(q, [exl.h * p[u], exl.h * p[v]]) {
                         return None;
                     }
                 }

@@ -304,7 +304,7 @@ pub struct SolidSettings {
     /// as they are ([`mirror`]; the job does it, reading the files).
     pub mirror: bool,
     /// Lattice phase: the exemplars' grid, which every view keeps in phase
-    /// with the voxels ([`lattice::PHASE_TOLERANCE`]), as given, found in
+    /// with the voxels ([`crate::lattice::PHASE_TOLERANCE`]), as given, found in
     /// the exemplars ([`phase_grid`]; the default) or off.
     pub lattice: LatticeSpec,
 }

@@ -357,7 +357,7 @@ fn index_histogram_matching_spreads_the_views_over_the_exemplar_and_sharpens_the
 }
 
 /// Lattice phase: with the weave's period every view's coordinate at every
-/// voxel lies within [`lattice::PHASE_TOLERANCE`] of the grid through the
+/// voxel lies within [`crate::lattice::PHASE_TOLERANCE`] of the grid through the
 /// voxel, and the slices come nearer the weave's Laplacian statistics; the
 /// negative control, the same solid without it, has most coordinates off
 /// the grid and its slices further from the weave.
@@ -376,7 +376,8 @@ fn lattice_phase_keeps_a_weave_s_grid_in_every_view() {
                 let e =
                     |a: usize, ax: usize| grid.axis_error(a, i64::from(q[a]) - p[ax] as i64, 1.0);
                 off += usize::from(
-                    e(0, u) > lattice::PHASE_TOLERANCE || e(1, v) > lattice::PHASE_TOLERANCE,
+                    e(0, u) > crate::lattice::PHASE_TOLERANCE
+                        || e(1, v) > crate::lattice::PHASE_TOLERANCE,
                 );
             }
         }
