@@ -215,8 +215,7 @@ pub struct SynthArgs {
     pub fine_passes: Option<usize>,
     /// --method parallel: copy guard, the largest share of the output one
     /// offset from the sample may grow to (0 < share < 1; 0: off; default
-    /// 0.08 for --neighbourhood 5, reduced and half, and for every
-    /// neighbourhood under lattice phase; off for the others).
+    /// 0.08).
     #[arg(long)]
     pub copy_guard: Option<f32>,
     /// --method parallel: k of the k-coherence candidate sets (1 to 16;

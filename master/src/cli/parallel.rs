@@ -13,9 +13,7 @@ use crate::imaging::{self, ColorImage};
 use crate::lattice::{Lattice, LatticeSpec};
 use crate::parallel::cache::CandidateCache;
 use crate::parallel::candidates::MAX_K;
-use crate::parallel::driver::{
-    default_coherence, CoarseLevels, Start, COARSE_PASSES, LATTICE_COPY_GUARD,
-};
+use crate::parallel::driver::{default_coherence, CoarseLevels, Start, COARSE_PASSES};
 use crate::parallel::synth::{self, MorphColour, Neighbourhood, ParallelSettings, Synthesis};
 use crate::parallel::weights;
 
@@ -318,13 +316,10 @@ impl ParallelArgs {
         morph: bool,
         lattice: Option<Lattice>,
     ) -> Result<Synthesis> {
-        let mut settings = ParallelSettings {
+        let settings = ParallelSettings {
             lattice,
             ..self.settings(colour, morph)?
         };
-        if lattice.is_some() && self.copy_guard.is_none() {
-            settings.copy_guard = settings.copy_guard.or(Some(LATTICE_COPY_GUARD));
-        }
         let pool = self.run.pool()?;
         let largest = exemplars
             .iter()
