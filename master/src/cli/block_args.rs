@@ -229,8 +229,8 @@ pub struct SynthArgs {
     #[arg(long)]
     pub coherence: Option<f32>,
     /// --method parallel: the neighbourhood of every level above the
-    /// finest (reduced, half, 5, 7 or same; default 7 for reduced and half,
-    /// same for 5 and 7).
+    /// finest (reduced, half, 5, 7 or same; default 7 for reduced, half and
+    /// 5, same for 7).
     #[arg(long, alias = "coarse-neighborhood")]
     pub coarse_neighbourhood: Option<String>,
     /// --method parallel: correction passes of the levels above the finest
