@@ -290,7 +290,7 @@ pub fn default_fine_passes(n: Neighbourhood, morph: bool) -> Option<usize> {
 /// output is nearest the exemplar. `reduced` and `half` take it with their
 /// lighter jitter ([`default_jitter`]). 7×7 without it grew one offset over
 /// 0.106 of a 1024² output from the 512² grass, and over 0.12 of the
-/// facade's and the coloured tiles' under lattice phase; with it 0.077,
+/// facade's and the coloured tiles' under lattice phase; with it 0.069,
 /// 0.050 and 0.065, and on the 22 samples the same counts within 1.3× of the
 /// block method (fidelity 20, S_L 21; largest `copy_share` 0.080 → 0.065).
 pub fn default_copy_guard(morph: bool) -> Option<f32> {
